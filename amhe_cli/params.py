@@ -1,0 +1,222 @@
+"""Named physical parameters ``p`` and how a value is written into an ``MjModel``.
+
+A :class:`ParameterSpace` is the map between the flat vectors the optimisers see
+(CMA-ES in ``identify``/``probe``, the diagonal Gaussian of the MHE) and the
+physics: each free parameter has a unit, a prior mean, a prior standard deviation
+(``W_p = diag(1/σ²)``, paper eq. 4), bounds, and a writer. Parameters that are
+not free stay at their prior.
+
+Physical consistency: principal moments of inertia must satisfy the triangle
+inequalities (``I_x ≤ I_y + I_z`` and permutations, i.e. non-negative second
+moments of mass). :meth:`ParameterSpace.project` maps any candidate onto the
+bounds and that set; the cost module charges the distance moved as a penalty, so
+CMA-ES is steered back rather than fed a flat plateau.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+
+from .errors import AmheError
+from .scene import Scene
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One named physical parameter.
+
+    Attributes:
+        name: identifier used on the command line and in beliefs.
+        unit: SI unit string.
+        size: number of scalars (1, or 3 for principal moments).
+        lower, upper: (size,) bounds.
+        prior_std: (size,) default prior standard deviation (``W_p = 1/σ²``).
+        doc: one-line meaning.
+    """
+
+    name: str
+    unit: str
+    size: int
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    prior_std: tuple[float, ...]
+    doc: str
+
+
+#: Every parameter amhe knows, in canonical order.
+PARAMETERS: dict[str, Parameter] = {
+    p.name: p
+    for p in (
+        Parameter("box_mass", "kg", 1, (0.2,), (40.0,), (3.0,), "mass of the box"),
+        Parameter("box_inertia", "kg*m^2", 3, (1e-4,) * 3, (3.0,) * 3, (0.1,) * 3,
+                  "principal moments of inertia of the box about its centre (box axes)"),
+        Parameter("box_friction", "1", 1, (0.01,), (2.0,), (0.5,),
+                  "box-floor sliding friction coefficient (all floor regions)"),
+        Parameter("robot_box_friction", "1", 1, (0.05,), (2.0,), (0.3,),
+                  "robot-box sliding friction coefficient (nuisance)"),
+    )
+}
+
+DEFAULT_FREE = ("box_mass", "box_inertia", "box_friction")
+
+
+def parse_names(text: str | None) -> tuple[str, ...]:
+    """Parse ``"box_mass,box_friction"`` into names; ``None`` gives the default set.
+
+    Raises:
+        AmheError: an unknown name (the message lists the known ones).
+    """
+    if text is None:
+        return DEFAULT_FREE
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    bad = [n for n in names if n not in PARAMETERS]
+    if bad or not names:
+        raise AmheError(f"unknown parameter {', '.join(bad) or repr(text)}: expected a comma-separated "
+                        f"subset of {', '.join(PARAMETERS)}")
+    return tuple(n for n in PARAMETERS if n in names)
+
+
+class ParameterSpace:
+    """The free parameters of one estimation problem and their prior.
+
+    Args:
+        scene: the scene whose model the values are written into.
+        free: names of the free parameters (see :data:`PARAMETERS`).
+        prior: name -> prior mean (scalar or (size,) array) overriding the
+            scene's nominal values; may also hold fixed values of parameters
+            that are not free.
+        prior_std: name -> prior standard deviation overriding the defaults.
+
+    Attributes:
+        dim: number of free scalars ``d``.
+        labels: (d,) flat labels, ``box_inertia_0`` etc. for vectors.
+        mean0: (d,) prior mean ``p0``; ``std0``: (d,) prior std; ``lower``, ``upper``: (d,) bounds.
+
+    If ``box_inertia`` is not free it follows the mass: the prior moments are
+    scaled by ``mass / prior mass`` (uniform density, same shape), which keeps a
+    heavier box physically consistent.
+    """
+
+    def __init__(self, scene: Scene, free=DEFAULT_FREE, prior: dict | None = None,
+                 prior_std: dict | None = None):
+        self.scene = scene
+        self.free = tuple(parse_names(",".join(free)) if not isinstance(free, str) else parse_names(free))
+        m = scene.model
+        geom_box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "box")
+        self._geom_box = geom_box
+        nominal = {
+            "box_mass": np.array([m.body_mass[scene.box_body]]),
+            "box_inertia": m.body_inertia[scene.box_body].copy(),
+            "box_friction": np.array([m.pair_friction[scene.region_pairs[0], 0]]),
+            "robot_box_friction": np.array([m.geom_friction[geom_box, 0]]),
+        }
+        self.prior_values: dict[str, np.ndarray] = {}
+        prior = prior or {}
+        for name, p in PARAMETERS.items():
+            val = np.atleast_1d(np.asarray(prior.get(name, nominal[name]), dtype=float))
+            if val.shape != (p.size,):
+                raise AmheError(f"prior for {name} has {val.size} values, expected {p.size}")
+            self.prior_values[name] = val
+        if "box_inertia" not in prior and "box_mass" in prior:
+            # a prior mass without a prior inertia: scale the nominal shape to it
+            self.prior_values["box_inertia"] = nominal["box_inertia"] * (
+                self.prior_values["box_mass"][0] / nominal["box_mass"][0])
+        prior_std = prior_std or {}
+        self.labels: list[str] = []
+        mean0, std0, lo, hi, self._slices = [], [], [], [], {}
+        for name in self.free:
+            p = PARAMETERS[name]
+            s = len(mean0)
+            self._slices[name] = slice(s, s + p.size)
+            mean0 += list(self.prior_values[name])
+            std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, p.prior_std), dtype=float), (p.size,)))
+            lo += list(p.lower)
+            hi += list(p.upper)
+            self.labels += [name] if p.size == 1 else [f"{name}_{i}" for i in range(p.size)]
+        self.mean0 = np.array(mean0)
+        self.std0 = np.array(std0)
+        self.lower = np.array(lo)
+        self.upper = np.array(hi)
+        self.dim = len(self.labels)
+        if np.any(self.std0 <= 0):
+            raise AmheError("prior standard deviations must be positive")
+        self.mean0 = np.clip(self.mean0, self.lower, self.upper)
+
+    # -- conversions --------------------------------------------------------
+    def values(self, vec: np.ndarray) -> dict[str, float | np.ndarray]:
+        """All parameters (free from ``vec`` (d,), the rest at the prior) as name -> value."""
+        vec = np.asarray(vec, dtype=float)
+        out = {n: v.copy() for n, v in self.prior_values.items()}
+        for name, sl in self._slices.items():
+            out[name] = vec[sl].copy()
+        if "box_inertia" not in self._slices:
+            out["box_inertia"] = self.prior_values["box_inertia"] * (
+                out["box_mass"][0] / self.prior_values["box_mass"][0])
+        return {n: (float(v[0]) if v.size == 1 else v) for n, v in out.items()}
+
+    def free_values(self, vec: np.ndarray) -> dict[str, float | list[float]]:
+        """Free parameters of ``vec`` (d,) as name -> float or list (for YAML/JSON)."""
+        vals = self.values(vec)
+        return {n: (vals[n] if np.isscalar(vals[n]) else [float(x) for x in vals[n]]) for n in self.free}
+
+    def vector(self, values: dict) -> np.ndarray:
+        """(d,) vector of the free parameters from name -> value (missing: prior)."""
+        vec = self.mean0.copy()
+        for name, sl in self._slices.items():
+            if name in values:
+                vec[sl] = np.atleast_1d(np.asarray(values[name], dtype=float))
+        return vec
+
+    def slices(self) -> dict[str, slice]:
+        """name -> slice of the flat vector, for the free parameters."""
+        return dict(self._slices)
+
+    # -- feasibility --------------------------------------------------------
+    def project(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest feasible candidates.
+
+        Args:
+            P: (B, d) candidates.
+        Returns:
+            (B, d) projected candidates and (B,) squared distance moved, measured
+            in prior standard deviations.
+        """
+        P = np.atleast_2d(np.asarray(P, dtype=float))
+        Q = np.clip(P, self.lower, self.upper)
+        if "box_inertia" in self._slices:
+            sl = self._slices["box_inertia"]
+            inertia = Q[:, sl]
+            for _ in range(3):  # raise the two smaller moments until I_max <= sum of the others
+                order = np.argsort(inertia, axis=1)
+                big = np.take_along_axis(inertia, order[:, 2:], axis=1)[:, 0]
+                rest = np.take_along_axis(inertia, order[:, :2], axis=1).sum(axis=1)
+                short = np.maximum(big - rest, 0.0)
+                # split the deficit: lower the largest by a third, raise the others by a third each
+                adj = np.zeros_like(inertia)
+                np.put_along_axis(adj, order[:, 2:], -short[:, None] / 3, axis=1)
+                np.put_along_axis(adj, order[:, :2], np.repeat(short[:, None] / 3, 2, axis=1), axis=1)
+                inertia = inertia + adj
+            Q[:, sl] = np.clip(inertia, self.lower[sl], self.upper[sl])
+        moved = (((Q - P) / self.std0) ** 2).sum(axis=1)
+        return Q, moved
+
+    # -- writing into models ------------------------------------------------
+    def write(self, model: mujoco.MjModel, vec: np.ndarray) -> None:
+        """Write all parameter values of ``vec`` (d,) into ``model`` in place.
+
+        Calls ``mujoco.mj_setConst`` after inertial changes: without it
+        ``body_invweight0`` stays stale and the contact solver behaves as if
+        the mass were the old one (DESIGN.md §4).
+        """
+        vals = self.values(vec)
+        b = self.scene.box_body
+        model.body_mass[b] = vals["box_mass"]
+        model.body_inertia[b] = vals["box_inertia"]
+        mu = vals["box_friction"]
+        model.pair_friction[self.scene.region_pairs, 0] = mu
+        model.pair_friction[self.scene.region_pairs, 1] = mu
+        model.geom_friction[self._geom_box, 0] = vals["robot_box_friction"]
+        mujoco.mj_setConst(model, mujoco.MjData(model))

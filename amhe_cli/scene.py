@@ -1,0 +1,305 @@
+"""The Go1 + box + floor scene, built from the bundled Go1 MJCF with ``mujoco.MjSpec``.
+
+The scene is the one dynamics model ``f(x, u; p)`` of the paper (eq. 3) that
+identification, estimation, planning and the sim plant all instantiate. Its
+geometry (box size, floor height, friction regions) comes from a
+:class:`SceneConfig`, which :func:`infer_scene_config` derives from a log so that a
+log recorded in another world frame or with another box still lines up.
+
+Contact design (DESIGN.md §4): the box touches the floor **only** through one
+explicit ``<pair>`` per floor region, so "box–floor friction" is exactly the
+pair's sliding coefficient; the robot's feet keep their own friction (priority 1)
+and robot–box contacts use the robot geoms' 0.6. Cones are elliptic.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from importlib import resources
+
+import mujoco
+import numpy as np
+
+from .errors import AmheError
+from .trajectory import GO1_JOINTS, Trajectory
+
+#: Standing joint pose per leg (hip, thigh, calf) [rad], DESIGN.md §5.
+STAND_JOINTS = np.tile([0.0, 0.9, -1.8], 4)
+FOOT_RADIUS = 0.023
+FEET = ("FR_foot", "FL_foot", "RR_foot", "RL_foot")
+
+
+def model_path(name: str = "go1.xml") -> str:
+    """Filesystem path of a model shipped inside the package (``amhe_cli/models``)."""
+    return str(resources.files("amhe_cli") / "models" / name)
+
+
+@dataclass(frozen=True)
+class FloorRegion:
+    """A floor area with its own box–floor sliding friction.
+
+    ``x_min``/``x_max`` [m] bound the region along world x (None = unbounded).
+    """
+
+    mu: float
+    x_min: float | None = None
+    x_max: float | None = None
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Geometry and nominal physics of a scene.
+
+    Attributes:
+        box_size: full edge lengths (x, y, z) of the box [m].
+        box_mass: nominal box mass [kg].
+        box_inertia: principal moments [kg·m²]; None = uniform-density box.
+        floor_height: z of the floor surface under the box in the world frame [m].
+        robot_floor_height: z of the floor under the robot's feet [m]; None =
+            ``floor_height``. Differs when the log's robot is not our model
+            (other leg lengths): each floor is placed where the log says its
+            bodies rest, so no recorded state starts inside the floor.
+        regions: floor regions; one unbounded region = a uniform floor.
+        timestep: model timestep [s].
+        kp, kd: (12,) joint PD gains [N·m/rad], [N·m·s/rad]; None = model's 55/3.
+    """
+
+    box_size: tuple[float, float, float] = (0.38, 0.38, 0.38)
+    box_mass: float = 3.7
+    box_inertia: tuple[float, float, float] | None = None
+    floor_height: float = 0.0
+    robot_floor_height: float | None = None
+    regions: tuple[FloorRegion, ...] = (FloorRegion(mu=0.5),)
+    timestep: float = 0.002
+    kp: tuple[float, ...] | None = None
+    kd: tuple[float, ...] | None = None
+
+    def inertia(self, mass: float | None = None) -> np.ndarray:
+        """(3,) principal moments [kg·m²]: explicit, or a uniform box of ``mass``."""
+        m = self.box_mass if mass is None else mass
+        if self.box_inertia is not None and mass is None:
+            return np.asarray(self.box_inertia, dtype=float)
+        return uniform_box_inertia(m, self.box_size)
+
+    def to_dict(self) -> dict:
+        return {
+            "box_size": list(self.box_size),
+            "box_mass": self.box_mass,
+            "box_inertia": None if self.box_inertia is None else list(self.box_inertia),
+            "floor_height": self.floor_height,
+            "robot_floor_height": self.robot_floor_height,
+            "regions": [{"mu": r.mu, "x_min": r.x_min, "x_max": r.x_max} for r in self.regions],
+            "timestep": self.timestep,
+            "kp": None if self.kp is None else list(self.kp),
+            "kd": None if self.kd is None else list(self.kd),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "SceneConfig":
+        d = dict(d)
+        d["regions"] = tuple(FloorRegion(**r) for r in d.get("regions", [{"mu": 0.5}]))
+        for k in ("box_size", "box_inertia", "kp", "kd"):
+            if d.get(k) is not None:
+                d[k] = tuple(float(x) for x in d[k])
+        return cls(**d)
+
+
+def uniform_box_inertia(mass: float, size) -> np.ndarray:
+    """(3,) principal moments of a uniform box of ``mass`` [kg] and edges ``size`` [m]."""
+    a, b, c = np.asarray(size, dtype=float)
+    return mass / 12.0 * np.array([b * b + c * c, a * a + c * c, a * a + b * b])
+
+
+class Scene:
+    """A compiled Go1 + box scene and the index bookkeeping around it.
+
+    Attributes:
+        config: the :class:`SceneConfig` it was built from.
+        model: the compiled ``mujoco.MjModel`` (treat as a template: copy it
+            before writing parameters).
+        box_body: body id of the box.
+        region_pairs: (n_regions,) ids of the box–floor ``<pair>`` per region.
+        joint_qpos, joint_qvel: (12,) qpos/qvel addresses of the Go1 joints in
+            :data:`GO1_JOINTS` order.
+        base_qpos, box_qpos: (7,) qpos addresses of the free joints.
+        base_qvel, box_qvel: (6,) qvel addresses of the free joints.
+    """
+
+    def __init__(self, config: SceneConfig | None = None):
+        self.config = config or SceneConfig()
+        self.model = _build(self.config)
+        m = self.model
+        self.box_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "box")
+        self.region_pairs = np.array(
+            [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PAIR, f"box_floor_{i}") for i in range(len(self.config.regions))]
+        )
+        jids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, n) for n in GO1_JOINTS]
+        self.joint_qpos = np.array([m.jnt_qposadr[j] for j in jids])
+        self.joint_qvel = np.array([m.jnt_dofadr[j] for j in jids])
+        base = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "floating_base")
+        box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, "box")
+        self.base_qpos = np.arange(m.jnt_qposadr[base], m.jnt_qposadr[base] + 7)
+        self.box_qpos = np.arange(m.jnt_qposadr[box], m.jnt_qposadr[box] + 7)
+        self.base_qvel = np.arange(m.jnt_dofadr[base], m.jnt_dofadr[base] + 6)
+        self.box_qvel = np.arange(m.jnt_dofadr[box], m.jnt_dofadr[box] + 6)
+        act_joint = [m.actuator_trnid[i, 0] for i in range(m.nu)]
+        if act_joint != jids:
+            raise RuntimeError("bundled model's actuators are not in GO1_JOINTS order")
+        self.nstate = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+
+    # -- state layout -------------------------------------------------------
+    def qpos_qvel(self, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
+        """Scene-layout states of a trajectory.
+
+        Returns:
+            qpos: (T, nq); qvel: (T, nv) in this model's layout.
+        """
+        n = len(traj)
+        qpos = np.zeros((n, self.model.nq))
+        qvel = np.zeros((n, self.model.nv))
+        qpos[:, self.base_qpos[:3]] = traj.base_pos
+        qpos[:, self.base_qpos[3:]] = traj.base_quat
+        qpos[:, self.joint_qpos] = traj.joint_pos
+        qpos[:, self.box_qpos[:3]] = traj.box_pos
+        qpos[:, self.box_qpos[3:]] = traj.box_quat
+        qvel[:, self.base_qvel[:3]] = traj.base_linvel
+        qvel[:, self.base_qvel[3:]] = traj.base_angvel
+        qvel[:, self.joint_qvel] = traj.joint_vel
+        qvel[:, self.box_qvel[:3]] = traj.box_linvel
+        qvel[:, self.box_qvel[3:]] = traj.box_angvel
+        return qpos, qvel
+
+    def full_state(self, qpos: np.ndarray, qvel: np.ndarray, time: np.ndarray | float = 0.0) -> np.ndarray:
+        """Pack (N, nq) qpos and (N, nv) qvel into (N, nstate) mjSTATE_FULLPHYSICS vectors.
+
+        Everything else in the state (act, mocap, userdata) is the model default.
+        """
+        qpos = np.atleast_2d(qpos)
+        qvel = np.atleast_2d(qvel)
+        m = self.model
+        template = np.empty(self.nstate)
+        data = mujoco.MjData(m)
+        mujoco.mj_getState(m, data, template, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        out = np.tile(template, (qpos.shape[0], 1))
+        out[:, 0] = time
+        out[:, 1:1 + m.nq] = qpos
+        out[:, 1 + m.nq:1 + m.nq + m.nv] = qvel
+        return out
+
+    def standing_state(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0,
+                       box_xy=(0.6, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """(nq,), (nv,) of the robot standing at (x, y, yaw) and the box resting at ``box_xy``."""
+        m = self.model
+        qpos = m.qpos0.copy()
+        qpos[self.joint_qpos] = STAND_JOINTS
+        robot_floor = self.config.floor_height if self.config.robot_floor_height is None \
+            else self.config.robot_floor_height
+        qpos[self.base_qpos[:3]] = [x, y, robot_floor + 0.288]
+        qpos[self.base_qpos[3:]] = [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
+        qpos[self.box_qpos[:3]] = [box_xy[0], box_xy[1], self.config.floor_height + self.config.box_size[2] / 2]
+        qpos[self.box_qpos[3:]] = [1, 0, 0, 0]
+        return qpos, np.zeros(m.nv)
+
+    def foot_bottoms(self, qpos: np.ndarray) -> np.ndarray:
+        """(N, 4) z of the lowest point of each foot sphere [m] for (N, nq) states."""
+        m = self.model
+        d = mujoco.MjData(m)
+        gids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET]
+        out = np.empty((len(qpos), 4))
+        for i, q in enumerate(np.atleast_2d(qpos)):
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            out[i] = d.geom_xpos[gids, 2] - FOOT_RADIUS
+        return out
+
+
+def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
+    """Write joint PD gains into the position actuators of ``model`` (in place).
+
+    ``kp`` [N·m/rad] and ``kd`` [N·m·s/rad] are scalars or (nu,) arrays; a
+    MuJoCo position servo computes ``kp (ctrl - q) - kd dq``.
+    """
+    kp = np.broadcast_to(np.asarray(kp, dtype=float), (model.nu,))
+    kd = np.broadcast_to(np.asarray(kd, dtype=float), (model.nu,))
+    model.actuator_gainprm[:, 0] = kp
+    model.actuator_biasprm[:, 1] = -kp
+    model.actuator_biasprm[:, 2] = -kd
+
+
+def _build(cfg: SceneConfig) -> mujoco.MjModel:
+    if len(cfg.regions) == 0:
+        raise AmheError("scene needs at least one floor region")
+    if any(s <= 0 for s in cfg.box_size) or cfg.box_mass <= 0:
+        raise AmheError(f"box size {cfg.box_size} and mass {cfg.box_mass} must be positive")
+    spec = mujoco.MjSpec.from_file(model_path("go1.xml"))
+    spec.option.timestep = cfg.timestep
+    world = spec.worldbody
+    # The robot's floor: an infinite plane at floor_height, colliding with the robot only.
+    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
+                   pos=[0, 0, cfg.floor_height if cfg.robot_floor_height is None else cfg.robot_floor_height],
+                   contype=1, conaffinity=2, friction=[1.0, 0.005, 0.0001],
+                   rgba=[0.8, 0.8, 0.8, 1])
+    # Box-floor regions: geoms that collide with nothing dynamically; contacts come from pairs only.
+    for i, r in enumerate(cfg.regions):
+        name = f"floor_region_{i}"
+        if r.x_min is None and r.x_max is None:
+            world.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
+                           pos=[0, 0, cfg.floor_height], contype=0, conaffinity=0, group=3)
+        else:
+            lo = -50.0 if r.x_min is None else r.x_min
+            hi = 50.0 if r.x_max is None else r.x_max
+            world.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, size=[(hi - lo) / 2, 50.0, 0.05],
+                           pos=[(hi + lo) / 2, 0, cfg.floor_height - 0.05], contype=0, conaffinity=0, group=3)
+    half = [s / 2 for s in cfg.box_size]
+    box = world.add_body(name="box", pos=[0.6, 0, cfg.floor_height + half[2]])
+    box.add_freejoint(name="box")
+    box.mass = cfg.box_mass
+    box.inertia = list(cfg.inertia())
+    box.ipos = [0.0, 0.0, 0.0]
+    box.iquat = [1.0, 0.0, 0.0, 0.0]
+    box.explicitinertial = True
+    # priority 2: robot-box contacts take the box geom's friction (0.6, the robot geoms' value by
+    # default), so it can be freed as a nuisance parameter without touching robot-floor contacts
+    box.add_geom(name="box", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, contype=4, conaffinity=2,
+                 condim=3, priority=2, friction=[0.6, 0.005, 0.0001], rgba=[0.8, 0.5, 0.2, 1])
+    for i, r in enumerate(cfg.regions):
+        spec.add_pair(name=f"box_floor_{i}", geomname1="box", geomname2=f"floor_region_{i}",
+                      condim=3, friction=[r.mu, r.mu, 0.005, 0.0001, 0.0001])
+    model = spec.compile()
+    if cfg.kp is not None or cfg.kd is not None:
+        set_pd_gains(model, cfg.kp if cfg.kp is not None else 55.0, cfg.kd if cfg.kd is not None else 3.0)
+    return model
+
+
+def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
+                       box_size: tuple[float, float, float] | None = None) -> SceneConfig:
+    """A :class:`SceneConfig` whose geometry matches a recorded log.
+
+    * robot floor: median over the log of the lowest foot-sphere bottom, by
+      forward kinematics of the recorded base pose and joint angles through
+      *our* Go1 model (so a log robot with other leg lengths still stands on it);
+    * box floor: the box's median resting z minus half its height, with the box
+      size from ``box_size`` (x, y, z edges [m]) or else ``base.box_size``;
+    * PD gains: the log's ``kp``/``kd`` where it carries them;
+    * timestep: the trajectory's grid spacing.
+
+    Raises:
+        AmheError: the box would rest below the robot's floor by more than its
+            own height (frames or size inconsistent).
+    """
+    cfg = base or SceneConfig()
+    size = tuple(float(s) for s in (box_size or cfg.box_size))
+    scene = Scene(replace(cfg, regions=(FloorRegion(mu=0.5),), robot_floor_height=None))
+    qpos, _ = scene.qpos_qvel(traj)
+    idx = np.linspace(0, len(traj) - 1, min(len(traj), 400)).astype(int)
+    robot_floor = float(np.median(scene.foot_bottoms(qpos[idx]).min(axis=1)))
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
+    rest = speed <= max(0.01, np.percentile(speed, 30))
+    box_floor = float(np.median(traj.box_pos[rest, 2])) - size[2] / 2
+    if abs(box_floor - robot_floor) > size[2] / 2:
+        raise AmheError(f"box rests {box_floor - robot_floor:+.3f} m from the robot's floor: expected a box of height "
+                        f"{size[2]:.3f} m on the floor the robot stands on (check --box-size and the log's frames)")
+    return replace(
+        cfg, box_size=size, floor_height=box_floor, robot_floor_height=robot_floor, timestep=float(traj.dt),
+        kp=None if traj.kp is None else tuple(traj.kp), kd=None if traj.kd is None else tuple(traj.kd),
+    )
