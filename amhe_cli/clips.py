@@ -1,0 +1,175 @@
+"""Clips: short pieces of a recorded trajectory that the cost rolls out and matches.
+
+A clip ``c_k`` (paper eq. 1) is a recorded initial state ``x^r_{0,k}``, the
+recorded controls ``u^r_{0..H-1,k}`` and the recorded states
+``x^r_{1..H,k}`` to compare against. ``identify`` draws ``N_c`` clips with
+horizons uniform in a range (SPI, paper §III-B); the MHE tiles its window with
+consecutive clips (or one clip covering the whole window).
+
+Where clips start matters more than how many there are: a resting box says
+nothing about its mass or friction, so starts are drawn with probability
+proportional to how much the box moves and is pushed around them (DESIGN.md §4:
+the mass shows only during robot–box bumps, free sliding pins down μ).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import AmheError
+from .scene import Scene
+from .trajectory import Trajectory
+
+ROLES = ("base", "joint_states", "box")
+
+
+@dataclass
+class Clips:
+    """A batch of ``N_c`` clips, padded to the longest horizon ``H_max``.
+
+    Attributes:
+        start: (N_c,) index of each clip's initial state in the trajectory.
+        horizon: (N_c,) number of steps ``H_k`` rolled out.
+        initial_state: (N_c, nstate) mjSTATE_FULLPHYSICS initial states.
+        control: (N_c, H_max, nu) recorded controls ``u^r_t`` (step t uses row t).
+        qpos: (N_c, H_max, nq) recorded states ``x^r_{t+1}`` (row t = after step t).
+        qvel: (N_c, H_max, nv).
+        observed: (N_c, H_max, 3) bool, per role in :data:`ROLES`, whether
+            the recorded state at that step was measured (False in gaps and
+            in padding beyond ``H_k``).
+        dt: model timestep [s].
+    """
+
+    start: np.ndarray
+    horizon: np.ndarray
+    initial_state: np.ndarray
+    control: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    observed: np.ndarray
+    dt: float
+
+    def __len__(self) -> int:
+        return int(self.start.shape[0])
+
+    @property
+    def steps(self) -> int:
+        """Total simulated steps for one candidate: sum of horizons."""
+        return int(self.horizon.sum())
+
+
+def make_clips(traj: Trajectory, scene: Scene, starts, horizons) -> Clips:
+    """Cut clips at ``starts`` (N_c,) with ``horizons`` (N_c,) steps out of ``traj``.
+
+    The trajectory grid must equal the model timestep.
+
+    Raises:
+        AmheError: a clip runs past the end of the trajectory, or the grid
+            spacing differs from the model timestep.
+    """
+    starts = np.asarray(starts, dtype=int)
+    horizons = np.asarray(horizons, dtype=int)
+    if abs(traj.dt - scene.model.opt.timestep) > 1e-9:
+        raise AmheError(f"trajectory grid {traj.dt} s differs from the model timestep {scene.model.opt.timestep} s")
+    if starts.size == 0:
+        raise AmheError("no clips: the trajectory has no usable window")
+    if np.any(starts < 0) or np.any(starts + horizons >= len(traj)) or np.any(horizons < 1):
+        raise AmheError(f"clip beyond the trajectory ({len(traj)} samples)")
+    qpos_all, qvel_all = scene.qpos_qvel(traj)
+    hmax = int(horizons.max())
+    n = len(starts)
+    nu = scene.model.nu
+    control = np.zeros((n, hmax, nu))
+    qpos = np.zeros((n, hmax, scene.model.nq))
+    qvel = np.zeros((n, hmax, scene.model.nv))
+    observed = np.zeros((n, hmax, len(ROLES)), dtype=bool)
+    roles = [traj.observed.get(r, np.ones(len(traj), dtype=bool)) for r in ROLES]
+    for k, (s, h) in enumerate(zip(starts, horizons)):
+        control[k, :h] = traj.ctrl[s:s + h]
+        control[k, h:] = traj.ctrl[s + h - 1]
+        qpos[k, :h] = qpos_all[s + 1:s + h + 1]
+        qvel[k, :h] = qvel_all[s + 1:s + h + 1]
+        qpos[k, h:] = qpos_all[s + h]
+        qvel[k, h:] = qvel_all[s + h]
+        for j, mask in enumerate(roles):
+            observed[k, :h, j] = mask[s + 1:s + h + 1]
+    initial = scene.full_state(qpos_all[starts], qvel_all[starts], time=traj.t[starts])
+    return Clips(starts, horizons, initial, control, qpos, qvel, observed, float(traj.dt))
+
+
+def excitation(traj: Trajectory, window: int) -> np.ndarray:
+    """(T,) how informative a clip starting at each sample is likely to be.
+
+    Box speed [m/s] plus box speed change over ``window`` samples, maxed over
+    the window that follows: high where the box is pushed or slides, zero where
+    it rests.
+    """
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1) + 0.19 * np.abs(traj.box_angvel[:, 2])
+    change = np.abs(np.roll(speed, -window) - speed)
+    change[-window:] = 0.0
+    score = speed + change
+    # max over the following window (sliding max via cumulative strides)
+    pad = np.concatenate([score, np.zeros(window)])
+    win = np.lib.stride_tricks.sliding_window_view(pad, window + 1)[: len(score)]
+    return win.max(axis=1)
+
+
+def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
+                 rng: np.random.Generator | None = None, t_range=None, min_speed: float = 0.02) -> Clips:
+    """Draw ``n_clips`` clips for SPI-style identification (paper §III-B).
+
+    Horizons are uniform in ``horizon_range`` [s] (rounded to model steps);
+    starts are drawn without replacement with probability proportional to
+    :func:`excitation`, among starts whose whole clip is observed and, if
+    given, inside ``t_range = (t0, t1)`` [s]. Where the box moves faster than
+    ``min_speed`` [m/s] somewhere in the clip only those starts are used.
+
+    Raises:
+        AmheError: no observed stretch is long enough for one clip.
+    """
+    rng = rng or np.random.default_rng(0)
+    lo, hi = (int(round(h / traj.dt)) for h in horizon_range)
+    lo = max(lo, 1)
+    hi = max(hi, lo)
+    valid = traj.valid()
+    n = len(traj)
+    # a start s is usable if samples s..s+hi are all valid
+    bad = np.concatenate([[0], np.cumsum(~valid)])
+    usable = np.zeros(n, dtype=bool)
+    last = n - hi - 1
+    if last > 0:
+        s = np.arange(last)
+        usable[:last] = (bad[s + hi + 1] - bad[s]) == 0
+    if t_range is not None:
+        usable &= (traj.t >= t_range[0]) & (traj.t + hi * traj.dt <= t_range[1])
+    if not usable.any():
+        raise AmheError(f"no stretch of the log is {hi * traj.dt:.2f} s long without gaps: "
+                        "expected at least one clip's worth of continuous data")
+    score = excitation(traj, hi)
+    active = usable & (score > min_speed)
+    pool = np.flatnonzero(active if active.sum() >= n_clips else usable)
+    weight = score[pool] + 1e-3
+    k = min(n_clips, pool.size)
+    starts = np.sort(rng.choice(pool, size=k, replace=False, p=weight / weight.sum()))
+    horizons = rng.integers(lo, hi + 1, size=k)
+    return make_clips(traj, scene, starts, horizons)
+
+
+def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_steps: int | None) -> Clips:
+    """Tile samples ``start..stop`` with consecutive clips of ``clip_steps`` steps.
+
+    ``clip_steps=None`` rolls the window out in one piece from its first state
+    (the paper's MHE, eq. 4); a number resets to the recorded state every
+    ``clip_steps`` steps (multiple shooting).
+    """
+    stop = min(stop, len(traj) - 1)
+    length = stop - start
+    if length < 1:
+        raise AmheError("empty estimation window")
+    step = length if clip_steps is None else max(1, min(clip_steps, length))
+    starts = np.arange(start, stop, step)
+    horizons = np.minimum(step, stop - starts)
+    keep = horizons >= 1
+    return make_clips(traj, scene, starts[keep], horizons[keep])

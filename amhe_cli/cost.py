@@ -1,0 +1,247 @@
+"""The shared rollout-matching cost ``J(p)`` — paper eq. (1) and eq. (4).
+
+For a batch ``P`` of ``B`` candidate parameter vectors and ``N_c`` clips::
+
+    J(p) = Σ_k Σ_{t=0}^{H_k-1} || x^r_{t+1,k} - x_{t+1,k}(p) ||²_{W_x}  +  || p - p0 ||²_{W_p}
+
+where ``x_{t+1,k}(p)`` is the state rolled out under ``f(·; p)`` from clip
+``k``'s recorded initial state with its recorded controls. This is the **one**
+module every subcommand evaluates (``identify``, ``probe``, ``mhe-replay``,
+``run``); none has its own rollout loop.
+
+State error lives in the tangent space (length ``2 nv``): free-body positions
+and rotation vectors of orientation error, joint angles, then all velocities.
+``W_x`` is diagonal, built from per-group standard deviations
+(``w = 1/σ²``, :class:`StateWeights`); components of a role that was not
+observed at a step (log gap) weigh zero there.
+
+Rollouts that diverge (non-finite or absurd states) get a large finite cost
+(:data:`DIVERGED`) so optimisers rank them last; nothing returns NaN.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .clips import ROLES, Clips
+from .params import ParameterSpace
+from .rollout import RolloutPool
+from .scene import Scene
+
+#: Cost given to a candidate whose rollout diverged on a clip.
+DIVERGED = 1e12
+#: Weight of the feasibility penalty (per squared prior-σ moved by projection).
+PENALTY = 1e3
+
+#: Default state-error standard deviations per group, in SI units.
+DEFAULT_SIGMA: dict[str, float] = {
+    "base_pos": 0.02, "base_rot": 0.05, "joint_pos": 0.1,
+    "box_pos": 0.002, "box_rot": 0.02,
+    "base_linvel": 0.5, "base_angvel": 1.0, "joint_vel": 5.0,
+    "box_linvel": 0.05, "box_angvel": 0.2,
+}
+
+
+@dataclass
+class StateWeights:
+    """Diagonal ``W_x`` by state group: ``w = 1/σ²``, σ in the group's SI unit.
+
+    A σ of ``inf`` (or a weight of 0) leaves that group out of the cost.
+    """
+
+    sigma: dict[str, float] = field(default_factory=lambda: dict(DEFAULT_SIGMA))
+
+    def __post_init__(self) -> None:
+        unknown = set(self.sigma) - set(DEFAULT_SIGMA)
+        if unknown:
+            from .errors import AmheError
+            raise AmheError(f"unknown state group {sorted(unknown)} in W_x: expected {sorted(DEFAULT_SIGMA)}")
+        self.sigma = {**DEFAULT_SIGMA, **self.sigma}
+
+    def vector(self, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+        """(2 nv,) weights and (2 nv,) role index (into :data:`ROLES`) per tangent component."""
+        nv = scene.model.nv
+        w = np.zeros(2 * nv)
+        role = np.zeros(2 * nv, dtype=int)
+        groups = {
+            "base_pos": (scene.base_qvel[:3], 0), "base_rot": (scene.base_qvel[3:], 0),
+            "joint_pos": (scene.joint_qvel, 1),
+            "box_pos": (scene.box_qvel[:3], 2), "box_rot": (scene.box_qvel[3:], 2),
+        }
+        for name, (idx, r) in groups.items():
+            w[idx] = 1.0 / self.sigma[name] ** 2
+            role[idx] = r
+            vel = name.replace("_pos", "_linvel").replace("_rot", "_angvel").replace("joint_linvel", "joint_vel")
+            w[nv + idx] = 1.0 / self.sigma[vel] ** 2
+            role[nv + idx] = r
+        return w, role
+
+
+def _quat_error(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vector of ``q_ref⁻¹ q`` (body frame), quaternions (..., 4) wxyz."""
+    w1, v1 = q_ref[..., :1], q_ref[..., 1:]
+    w2, v2 = q[..., :1], q[..., 1:]
+    w = w1 * w2 + (v1 * v2).sum(-1, keepdims=True)
+    v = w1 * v2 - w2 * v1 - np.cross(v1, v2)
+    sign = np.where(w < 0, -1.0, 1.0)
+    vn = np.linalg.norm(v, axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(vn, np.abs(w))
+    scale = np.where(vn > 1e-12, angle / np.maximum(vn, 1e-12), 2.0)
+    return sign * v * scale
+
+
+def state_error(scene: Scene, qpos_ref: np.ndarray, qvel_ref: np.ndarray, qpos: np.ndarray,
+                qvel: np.ndarray) -> np.ndarray:
+    """Tangent-space state error ``x - x^r``.
+
+    Args:
+        qpos_ref, qpos: (..., nq); qvel_ref, qvel: (..., nv).
+    Returns:
+        (..., 2 nv): position part in qvel layout (free joints: world-frame
+        translation, body-frame rotation vector), then velocity difference.
+    """
+    nv = scene.model.nv
+    err = np.empty(qpos.shape[:-1] + (2 * nv,))
+    err[..., nv:] = qvel - qvel_ref
+    for qadr, vadr in ((scene.base_qpos, scene.base_qvel), (scene.box_qpos, scene.box_qvel)):
+        err[..., vadr[:3]] = qpos[..., qadr[:3]] - qpos_ref[..., qadr[:3]]
+        err[..., vadr[3:]] = _quat_error(qpos_ref[..., qadr[3:]], qpos[..., qadr[3:]])
+    err[..., scene.joint_qvel] = qpos[..., scene.joint_qpos] - qpos_ref[..., scene.joint_qpos]
+    return err
+
+
+@dataclass
+class CostBreakdown:
+    """Result of one batched evaluation.
+
+    Attributes:
+        total: (B,) ``J`` = data + prior + penalty.
+        data: (B,) state-matching term summed over clips.
+        prior: (B,) ``||p - p0||²_{W_p}``.
+        penalty: (B,) infeasibility penalty (bounds, inertia inequalities).
+        per_clip: (B, N_c) state-matching term per clip.
+        diverged: (B, N_c) bool, rollouts that blew up.
+    """
+
+    total: np.ndarray
+    data: np.ndarray
+    prior: np.ndarray
+    penalty: np.ndarray
+    per_clip: np.ndarray
+    diverged: np.ndarray
+
+
+class RolloutCost:
+    """``J(P)`` for batches of candidates over a fixed set of clips (eq. 1 / eq. 4).
+
+    Args:
+        scene: the model ``f``.
+        space: free parameters, prior mean ``p0`` and prior std (``W_p``).
+        clips: the recorded clips (change them with :meth:`set_clips`, e.g.
+            when an MHE window slides).
+        weights: ``W_x`` (default :class:`StateWeights`).
+        prior_weight: multiplies ``W_p`` (0 disables the prior term).
+        pool: a :class:`RolloutPool` to share; by default one is created.
+        nthread: threads for a pool created here.
+
+    Deterministic: MuJoCo rollouts are, so the same ``P`` gives the same ``J``.
+    """
+
+    def __init__(self, scene: Scene, space: ParameterSpace, clips: Clips, weights: StateWeights | None = None,
+                 prior_weight: float = 1.0, pool: RolloutPool | None = None, nthread: int | None = None):
+        self.scene = scene
+        self.space = space
+        self.weights = weights or StateWeights()
+        self.prior_weight = float(prior_weight)
+        self.prior_mean = space.mean0.copy()
+        self._own_pool = pool is None
+        self.pool = pool or RolloutPool(scene.model, nthread)
+        self._w, self._role = self.weights.vector(scene)
+        self.rollout_steps = 0  # total simulated steps, for throughput figures
+        self.set_clips(clips)
+
+    def __enter__(self) -> "RolloutCost":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._own_pool:
+            self.pool.close()
+
+    def set_clips(self, clips: Clips) -> None:
+        """Replace the clips (grouped by horizon so no step is simulated twice)."""
+        self.clips = clips
+        self._groups = [np.flatnonzero(clips.horizon == h) for h in np.unique(clips.horizon)]
+        # (N_c, H_max, 2nv) weights with unobserved roles zeroed
+        self._wmask = self._w[None, None, :] * clips.observed[:, :, self._role]
+
+    def set_prior(self, mean: np.ndarray, std: np.ndarray | None = None) -> None:
+        """Move the prior ``p0`` (and optionally its σ), e.g. to the previous MHE estimate ``p̂⁻``."""
+        self.prior_mean = np.asarray(mean, dtype=float).copy()
+        if std is not None:
+            self.space.std0 = np.asarray(std, dtype=float).copy()
+
+    def __call__(self, P: np.ndarray) -> np.ndarray:
+        """(B,) total cost of (B, d) candidates."""
+        return self.evaluate(P).total
+
+    def rollout(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Roll every candidate out over every clip.
+
+        Args:
+            P: (B, d) candidates (already feasible).
+        Returns:
+            qpos (B, N_c, H_max, nq) and qvel (B, N_c, H_max, nv); rows past a
+            clip's horizon repeat its last rolled-out state.
+        """
+        P = np.atleast_2d(P)
+        B, clips = P.shape[0], self.clips
+        models = self.pool.models(B)
+        for b in range(B):
+            self.space.write(models[b], P[b])
+        m = self.scene.model
+        hmax = clips.control.shape[1]
+        qpos = np.empty((B, len(clips), hmax, m.nq))
+        qvel = np.empty((B, len(clips), hmax, m.nv))
+        for idx in self._groups:
+            h = int(clips.horizon[idx[0]])
+            batch_models = [models[b] for b in range(B) for _ in idx]
+            init = np.tile(clips.initial_state[idx], (B, 1))
+            ctrl = np.tile(clips.control[idx, :h], (B, 1, 1))
+            state = self.pool.rollout(batch_models, init, ctrl, nstep=h)
+            self.rollout_steps += state.shape[0] * h
+            state = state.reshape(B, idx.size, h, -1)
+            qpos[:, idx, :h] = state[..., 1:1 + m.nq]
+            qvel[:, idx, :h] = state[..., 1 + m.nq:1 + m.nq + m.nv]
+            qpos[:, idx, h:] = qpos[:, idx, h - 1:h]
+            qvel[:, idx, h:] = qvel[:, idx, h - 1:h]
+        return qpos, qvel
+
+    def evaluate(self, P: np.ndarray) -> CostBreakdown:
+        """Evaluate ``J`` on a batch.
+
+        Args:
+            P: (B, d) candidate parameter vectors (any values: infeasible ones
+                are projected and charged :data:`PENALTY` per squared prior-σ).
+        Returns:
+            :class:`CostBreakdown` with (B,) totals and (B, N_c) per-clip terms.
+        """
+        P = np.atleast_2d(np.asarray(P, dtype=float))
+        if P.shape[1] != self.space.dim:
+            raise ValueError(f"candidates have {P.shape[1]} columns, expected {self.space.dim} ({self.space.labels})")
+        Q, moved = self.space.project(P)
+        qpos, qvel = self.rollout(Q)
+        c = self.clips
+        err = state_error(self.scene, c.qpos[None], c.qvel[None], qpos, qvel)
+        per_step = (err ** 2 * self._wmask[None]).sum(-1)  # (B, N_c, H_max)
+        per_clip = per_step.sum(-1)
+        diverged = ~np.isfinite(per_clip) | (np.abs(qpos).max(axis=(2, 3)) > 1e3)
+        per_clip = np.where(diverged, DIVERGED, per_clip)
+        data = per_clip.sum(axis=1)
+        prior = self.prior_weight * (((Q - self.prior_mean) / self.space.std0) ** 2).sum(axis=1)
+        penalty = PENALTY * moved
+        return CostBreakdown(data + prior + penalty, data, prior, penalty, per_clip, diverged)
