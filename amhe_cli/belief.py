@@ -1,0 +1,126 @@
+"""Beliefs: an estimate with its uncertainty and provenance, as YAML.
+
+``identify`` and ``probe`` write one; ``mhe-replay`` and ``run`` start from one
+(``--prior``/``--belief``). The file is plain YAML, readable by people::
+
+    amhe_belief: 1
+    parameters:
+      box_mass: {value: 5.02, std: 0.07, unit: kg}
+      box_inertia: {value: [0.12, 0.12, 0.12], std: [...], unit: kg*m^2}
+    free: [box_mass, box_inertia, box_friction]
+    correlation: {labels: [...], matrix: [[...]]}
+    cost: {prior: ..., estimate: ...}
+    scene: {...}          # geometry the estimate refers to
+    provenance: {command: identify, log: ..., sha256: ..., settings: {...}}
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .errors import AmheError
+from .params import PARAMETERS
+
+FORMAT_VERSION = 1
+
+
+@dataclass
+class Belief:
+    """Mean, standard deviation and correlation of parameters, with provenance.
+
+    Attributes:
+        values: name -> float or (size,) list, every parameter the belief fixes.
+        std: name -> float or list, for the estimated ones.
+        free: names that were estimated (the rest are fixed values).
+        labels: flat labels of the correlation matrix.
+        correlation: (d, d) correlation of the free parameters' flat vector.
+        cost: e.g. ``{"prior": J(p0), "estimate": J(p̂)}`` and residual per step.
+        scene: scene configuration the values refer to (SceneConfig.to_dict()).
+        provenance: command, log path and digest, settings, time.
+    """
+
+    values: dict
+    std: dict = field(default_factory=dict)
+    free: list = field(default_factory=list)
+    labels: list = field(default_factory=list)
+    correlation: list = field(default_factory=list)
+    cost: dict = field(default_factory=dict)
+    scene: dict = field(default_factory=dict)
+    provenance: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        params = {}
+        for name, val in self.values.items():
+            entry = {"value": _plain(val), "unit": PARAMETERS[name].unit if name in PARAMETERS else ""}
+            if name in self.std:
+                entry["std"] = _plain(self.std[name])
+            params[name] = entry
+        return {
+            "amhe_belief": FORMAT_VERSION,
+            "parameters": params,
+            "free": list(self.free),
+            "correlation": {"labels": list(self.labels), "matrix": _plain(self.correlation)},
+            "cost": {k: _plain(v) for k, v in self.cost.items()},
+            "scene": self.scene,
+            "provenance": _plain(self.provenance),
+        }
+
+    def save(self, path: str | os.PathLike, force: bool = False) -> Path:
+        """Write YAML to ``path``.
+
+        Raises:
+            AmheError: the file exists and ``force`` is False.
+        """
+        path = Path(path)
+        if path.exists() and not force:
+            raise AmheError(f"{path} already exists: pass --force to overwrite it, or choose another --out")
+        path.write_text(yaml.safe_dump(self.to_dict(), sort_keys=False, width=120))
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Belief":
+        """Read a belief YAML.
+
+        Raises:
+            AmheError: missing file, not YAML, or not an amhe belief.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise AmheError(f"belief file {path} not found: expected a YAML written by 'amhe identify' or 'amhe probe'")
+        try:
+            d = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as e:
+            raise AmheError(f"{path} is not valid YAML ({str(e).splitlines()[0]})") from None
+        if not isinstance(d, dict) or "parameters" not in d or not isinstance(d["parameters"], dict):
+            raise AmheError(f"{path} is not an amhe belief: expected a 'parameters' mapping")
+        values, std = {}, {}
+        for name, entry in d["parameters"].items():
+            if name not in PARAMETERS:
+                raise AmheError(f"{path}: unknown parameter {name!r}: expected one of {', '.join(PARAMETERS)}")
+            if not isinstance(entry, dict) or "value" not in entry:
+                raise AmheError(f"{path}: parameter {name!r} needs a 'value'")
+            values[name] = entry["value"]
+            if "std" in entry:
+                std[name] = entry["std"]
+        corr = d.get("correlation") or {}
+        return cls(values=values, std=std, free=list(d.get("free", [])), labels=list(corr.get("labels", [])),
+                   correlation=corr.get("matrix", []), cost=d.get("cost", {}), scene=d.get("scene", {}),
+                   provenance=d.get("provenance", {}))
+
+
+def _plain(v):
+    """numpy -> plain Python for YAML/JSON."""
+    if isinstance(v, dict):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, (np.floating, np.integer)):
+        return v.item()
+    return v

@@ -1,0 +1,178 @@
+"""Offline identification, SPI-style (paper §III-B): CMA-ES over rollout-matching clips.
+
+``N_c`` clips with horizons drawn uniformly from a range are cut from the log
+(:func:`~amhe_cli.clips.sample_clips`); CMA-ES (the ``cma`` package, ask/tell)
+minimises the shared cost ``J`` (eq. 1) over the free parameters; the belief's
+covariance comes from the cost's curvature at the estimate
+(:mod:`~amhe_cli.uncertainty`).
+
+CMA-ES searches in prior-σ units, ``z = (p - p0) / σ_prior``, so a kilogram and a
+friction coefficient are steps of comparable meaning.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import cma
+import numpy as np
+
+from .clips import Clips, sample_clips
+from .cost import RolloutCost, StateWeights
+from .params import DEFAULT_FREE, ParameterSpace
+from .scene import Scene
+from .trajectory import Trajectory
+from .uncertainty import Curvature, curvature
+
+
+@dataclass
+class IdentifySettings:
+    """Settings of one identification run (stored in the belief's provenance).
+
+    Attributes:
+        params: free parameter names.
+        n_clips: number of clips ``N_c``.
+        horizon: (min, max) clip horizon [s], drawn uniformly. 0.1–0.2 s: longer
+            clips let the optimum slide along the m·μ valley (DESIGN.md §4b).
+        popsize: CMA-ES population (candidates per generation, ``B``).
+        max_gen: generation limit.
+        sigma0: initial CMA-ES step in prior-σ units.
+        prior_weight: scales ``W_p`` (0: no prior term).
+        seed: seeds clip selection and CMA-ES.
+        t_range: (t0, t1) [s] part of the log to use, or None for all of it.
+        sigma: state-error σ per group overriding the defaults (``W_x``).
+    """
+
+    params: tuple = DEFAULT_FREE
+    n_clips: int = 32
+    horizon: tuple = (0.1, 0.2)
+    popsize: int = 16
+    max_gen: int = 60
+    sigma0: float = 0.3
+    prior_weight: float = 1.0
+    seed: int = 0
+    t_range: tuple | None = None
+    sigma: dict = field(default_factory=dict)
+
+
+@dataclass
+class IdentifyResult:
+    """What :func:`identify` found.
+
+    Attributes:
+        space: the parameter space (labels, prior).
+        estimate: (d,) the estimate ``p̂``.
+        curvature: belief covariance etc. at ``p̂``.
+        cost_prior, cost_estimate: ``J`` at the prior mean and at ``p̂``.
+        residual_rms: sqrt(data term / simulated steps) at ``p̂``: ≈ 1 means the
+            model explains the log to within the ``W_x`` σ's; ≫ 1 flags a
+            model mismatch.
+        history: per generation: best cost, mean cost, step size, mean (d,).
+        clips: the clips used.
+        wall_time: seconds.
+        evaluations: candidate evaluations.
+    """
+
+    space: ParameterSpace
+    estimate: np.ndarray
+    curvature: Curvature
+    cost_prior: float
+    cost_estimate: float
+    residual_rms: float
+    history: list
+    clips: Clips
+    settings: IdentifySettings
+    wall_time: float
+    evaluations: int
+
+    def summary(self) -> dict:
+        """JSON-ready ``{"estimate", "std", "prior", ...}`` (vectors as lists)."""
+        sp = self.space
+        std = {}
+        for name, sl in sp.slices().items():
+            s = self.curvature.std[sl]
+            std[name] = float(s[0]) if s.size == 1 else [float(x) for x in s]
+        return {
+            "estimate": sp.free_values(self.estimate),
+            "std": std,
+            "prior": sp.free_values(sp.mean0),
+            "labels": list(sp.labels),
+            "correlation": self.curvature.corr.tolist(),
+            "cost": {"prior": self.cost_prior, "estimate": self.cost_estimate,
+                     "residual_rms": self.residual_rms},
+            "clips": len(self.clips),
+            "generations": len(self.history),
+            "evaluations": self.evaluations,
+            "wall_time_s": self.wall_time,
+        }
+
+
+def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: IdentifySettings,
+             progress: Callable[[int, float], None] | None = None, nthread: int | None = None) -> IdentifyResult:
+    """Identify the free parameters of ``space`` from ``traj``.
+
+    Args:
+        traj: recorded trajectory on the model's timestep.
+        scene: model ``f`` (geometry matched to the log).
+        space: free parameters and prior.
+        settings: see :class:`IdentifySettings`.
+        progress: called after each generation with (generation, best cost).
+        nthread: rollout threads.
+
+    Raises:
+        AmheError: the log has no usable clip.
+    """
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(settings.seed)
+    clips = sample_clips(traj, scene, settings.n_clips, settings.horizon, rng=rng, t_range=settings.t_range)
+    weights = StateWeights(dict(settings.sigma))
+    with RolloutCost(scene, space, clips, weights, prior_weight=settings.prior_weight, nthread=nthread) as cost:
+        p0, s0 = space.mean0, space.std0
+        opts = {
+            "popsize": settings.popsize, "seed": settings.seed + 1, "verbose": -9,
+            "bounds": [list((space.lower - p0) / s0), list((space.upper - p0) / s0)],
+            "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": 1e-5, "tolflatfitness": 5,
+        }
+        es = cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0, opts)
+        history = []
+        evals = 0
+        best_p, best_j = p0.copy(), float(cost(p0[None])[0])
+        cost_prior = best_j
+        while not es.stop():
+            Z = np.array(es.ask())
+            P = p0 + Z * s0
+            J = cost(P)
+            evals += len(P)
+            es.tell(list(Z), list(J))
+            i = int(np.argmin(J))
+            if J[i] < best_j:
+                best_j, best_p = float(J[i]), P[i].copy()
+            history.append({"generation": len(history) + 1, "best": float(J.min()), "mean_cost": float(J.mean()),
+                            "sigma": float(es.sigma), "mean": (p0 + np.asarray(es.mean) * s0).tolist()})
+            if progress:
+                progress(len(history), best_j)
+        # the CMA mean jitters around the optimum; keep whichever of mean and best-ever scores lower
+        mean_p = space.project(p0 + np.asarray(es.mean) * s0)[0][0]
+        j_mean = float(cost(mean_p[None])[0])
+        evals += 1
+        estimate, j_est = (mean_p, j_mean) if j_mean <= best_j else (best_p, best_j)
+        estimate = space.project(estimate)[0][0]
+        curv = curvature(cost, estimate)
+        data = float(cost.evaluate(estimate[None]).data[0])
+    return IdentifyResult(
+        space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
+        residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
+        settings=settings, wall_time=time.perf_counter() - t0, evaluations=evals,
+    )
+
+
+def settings_dict(settings: IdentifySettings) -> dict:
+    """Settings as plain YAML/JSON types."""
+    d = asdict(settings)
+    d["params"] = list(d["params"])
+    d["horizon"] = list(d["horizon"])
+    if d["t_range"] is not None:
+        d["t_range"] = list(d["t_range"])
+    return d
