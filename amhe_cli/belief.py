@@ -66,7 +66,7 @@ class Belief:
             "free": list(self.free),
             "correlation": {"labels": list(self.labels), "matrix": _plain(self.correlation)},
             "cost": {k: _plain(v) for k, v in self.cost.items()},
-            "scene": self.scene,
+            "scene": _plain(self.scene),
             "provenance": _plain(self.provenance),
         }
 
@@ -121,6 +121,6 @@ def _plain(v):
         return [_plain(x) for x in v]
     if isinstance(v, np.ndarray):
         return _plain(v.tolist())
-    if isinstance(v, (np.floating, np.integer)):
+    if isinstance(v, (np.floating, np.integer, np.bool_)):
         return v.item()
     return v

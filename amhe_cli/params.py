@@ -56,7 +56,8 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("box_friction", "1", 1, (0.01,), (2.0,), (0.5,),
                   "box-floor sliding friction coefficient (all floor regions)"),
         Parameter("robot_box_friction", "1", 1, (0.05,), (2.0,), (0.3,),
-                  "robot-box sliding friction coefficient (nuisance)"),
+                  "robot-box sliding friction coefficient, feet excepted (nuisance; also sets the "
+                  "robot body's friction against the floor, which only matters if it falls)"),
     )
 }
 
@@ -105,13 +106,15 @@ class ParameterSpace:
         self.scene = scene
         self.free = tuple(parse_names(",".join(free)) if not isinstance(free, str) else parse_names(free))
         m = scene.model
-        geom_box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "box")
-        self._geom_box = geom_box
+        # robot geoms other than feet (priority 0, not world, not box): their friction is the
+        # robot-box coefficient under MuJoCo's max rule (the box geom's own friction is 0)
+        body = m.geom_bodyid
+        self._robot_geoms = np.flatnonzero((body != 0) & (body != scene.box_body) & (m.geom_priority == 0))
         nominal = {
             "box_mass": np.array([m.body_mass[scene.box_body]]),
             "box_inertia": m.body_inertia[scene.box_body].copy(),
             "box_friction": np.array([m.pair_friction[scene.region_pairs[0], 0]]),
-            "robot_box_friction": np.array([m.geom_friction[geom_box, 0]]),
+            "robot_box_friction": np.array([m.geom_friction[self._robot_geoms[0], 0]]),
         }
         self.prior_values: dict[str, np.ndarray] = {}
         prior = prior or {}
@@ -218,5 +221,5 @@ class ParameterSpace:
         mu = vals["box_friction"]
         model.pair_friction[self.scene.region_pairs, 0] = mu
         model.pair_friction[self.scene.region_pairs, 1] = mu
-        model.geom_friction[self._geom_box, 0] = vals["robot_box_friction"]
+        model.geom_friction[self._robot_geoms, 0] = vals["robot_box_friction"]
         mujoco.mj_setConst(model, mujoco.MjData(model))

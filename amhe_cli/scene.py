@@ -83,15 +83,15 @@ class SceneConfig:
 
     def to_dict(self) -> dict:
         return {
-            "box_size": list(self.box_size),
+            "box_size": [float(x) for x in self.box_size],
             "box_mass": self.box_mass,
-            "box_inertia": None if self.box_inertia is None else list(self.box_inertia),
-            "floor_height": self.floor_height,
-            "robot_floor_height": self.robot_floor_height,
+            "box_inertia": None if self.box_inertia is None else [float(x) for x in self.box_inertia],
+            "floor_height": float(self.floor_height),
+            "robot_floor_height": None if self.robot_floor_height is None else float(self.robot_floor_height),
             "regions": [{"mu": r.mu, "x_min": r.x_min, "x_max": r.x_max} for r in self.regions],
             "timestep": self.timestep,
-            "kp": None if self.kp is None else list(self.kp),
-            "kd": None if self.kd is None else list(self.kd),
+            "kp": None if self.kp is None else [float(x) for x in self.kp],
+            "kd": None if self.kd is None else [float(x) for x in self.kd],
         }
 
     @classmethod
@@ -213,6 +213,22 @@ class Scene:
         return out
 
 
+def standing_sinkage(scene: "Scene") -> float:
+    """Depth [m] (negative) of the foot-sphere bottoms below the floor when our Go1 stands at rest.
+
+    Simulated once per call: 1.5 s of standing with the PD targets at the stand pose.
+    """
+    m = scene.model
+    d = mujoco.MjData(m)
+    qpos, _ = scene.standing_state(box_xy=(5.0, 0.0))
+    d.qpos[:] = qpos
+    d.ctrl[:] = STAND_JOINTS
+    mujoco.mj_step(m, d, nstep=int(1.5 / m.opt.timestep))
+    robot_floor = scene.config.floor_height if scene.config.robot_floor_height is None \
+        else scene.config.robot_floor_height
+    return float(np.mean(scene.foot_bottoms(d.qpos[None])[0]) - robot_floor)
+
+
 def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
     """Write joint PD gains into the position actuators of ``model`` (in place).
 
@@ -258,10 +274,11 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
     box.ipos = [0.0, 0.0, 0.0]
     box.iquat = [1.0, 0.0, 0.0, 0.0]
     box.explicitinertial = True
-    # priority 2: robot-box contacts take the box geom's friction (0.6, the robot geoms' value by
-    # default), so it can be freed as a nuisance parameter without touching robot-floor contacts
+# friction 0, priority 0: robot-box contacts take the robot geom's friction (max rule, 0.6) and
+    # foot-box contacts the foot's (priority 1: μ 0.8, soft solimp), as in the public Go1 world;
+    # giving the box its own priority made foot-box contacts stiff and moved the mass by +10 %
     box.add_geom(name="box", type=mujoco.mjtGeom.mjGEOM_BOX, size=half, contype=4, conaffinity=2,
-                 condim=3, priority=2, friction=[0.6, 0.005, 0.0001], rgba=[0.8, 0.5, 0.2, 1])
+                 condim=3, friction=[0, 0, 0], rgba=[0.8, 0.5, 0.2, 1])
     for i, r in enumerate(cfg.regions):
         spec.add_pair(name=f"box_floor_{i}", geomname1="box", geomname2=f"floor_region_{i}",
                       condim=3, friction=[r.mu, r.mu, 0.005, 0.0001, 0.0001])
@@ -289,16 +306,21 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
     """
     cfg = base or SceneConfig()
     size = tuple(float(s) for s in (box_size or cfg.box_size))
-    scene = Scene(replace(cfg, regions=(FloorRegion(mu=0.5),), robot_floor_height=None))
+    scene = Scene(replace(cfg, regions=(FloorRegion(mu=0.5),), robot_floor_height=None, floor_height=0.0))
     qpos, _ = scene.qpos_qvel(traj)
     idx = np.linspace(0, len(traj) - 1, min(len(traj), 400)).astype(int)
-    robot_floor = float(np.median(scene.foot_bottoms(qpos[idx]).min(axis=1)))
+    # soft foot contacts (solimp 0.015/1/0.031) let a standing Go1 sink ~2 cm into the floor:
+    # the recorded feet sit that deep too, so subtract our model's own resting sinkage
+    fk_floor = float(np.median(scene.foot_bottoms(qpos[idx]).min(axis=1)))
+    robot_floor = fk_floor - standing_sinkage(scene)
     speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
     rest = speed <= max(0.01, np.percentile(speed, 30))
     box_floor = float(np.median(traj.box_pos[rest, 2])) - size[2] / 2
     if abs(box_floor - robot_floor) > size[2] / 2:
         raise AmheError(f"box rests {box_floor - robot_floor:+.3f} m from the robot's floor: expected a box of height "
                         f"{size[2]:.3f} m on the floor the robot stands on (check --box-size and the log's frames)")
+    if abs(box_floor - robot_floor) < 0.01:
+        robot_floor = box_floor  # one physical floor; the gap is within the sinkage estimate
     return replace(
         cfg, box_size=size, floor_height=box_floor, robot_floor_height=robot_floor, timestep=float(traj.dt),
         kp=None if traj.kp is None else tuple(traj.kp), kd=None if traj.kd is None else tuple(traj.kd),
