@@ -200,8 +200,146 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         return
     click.echo(f"log {log}: {len(problem.traj) * problem.traj.dt:.1f} s, box floor z={problem.scene.config.floor_height:+.3f} m, "
                f"robot floor z={problem.scene.config.robot_floor_height:+.3f} m")
-    print_summary(result)
+    print_summary(result, truth=log_truth(problem.traj))
     click.echo(f"belief written to {out_path}" + (f"; plot to {plot_path}" if plot_path else ""))
+
+
+def log_truth(traj) -> dict | None:
+    """Ground truth carried by a log amhe simulated (metadata record ``amhe_truth``), else None."""
+    from .probe import TRUTH_RECORD
+    rec = traj.meta.get("metadata", {}).get(TRUTH_RECORD)
+    if not rec:
+        return None
+    out = {}
+    for k, v in rec.items():
+        try:
+            val = json.loads(v) if isinstance(v, str) else v
+        except json.JSONDecodeError:
+            continue
+        out[k] = val
+    return out
+
+
+def parse_truth(pairs: tuple[str, ...]) -> dict:
+    """``("box_mass=5", "box_inertia=0.1,0.1,0.12")`` -> {name: value}.
+
+    Raises:
+        AmheError: unknown name or a value that is not numbers.
+    """
+    truth = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        name = name.strip()
+        if not sep or name not in PARAMETERS:
+            raise AmheError(f"--truth {pair!r}: expected NAME=VALUE with NAME one of {', '.join(PARAMETERS)}")
+        try:
+            vals = [float(x) for x in text.split(",")]
+        except ValueError:
+            raise AmheError(f"--truth {pair!r}: expected numbers after '='") from None
+        if len(vals) != PARAMETERS[name].size or not all(np.isfinite(vals)):
+            raise AmheError(f"--truth {pair!r}: {name} takes {PARAMETERS[name].size} finite value(s)")
+        lo, hi = PARAMETERS[name].lower, PARAMETERS[name].upper
+        if any(v < a or v > b for v, a, b in zip(vals, lo, hi)):
+            raise AmheError(f"--truth {pair!r}: outside the bounds {lo}..{hi} of {name}")
+        truth[name] = vals[0] if len(vals) == 1 else vals
+    return truth
+
+
+@cli.command("probe")
+@click.argument("log", required=False, type=click.Path())
+@click.option("--target", type=click.Choice(["sim"]), default=None,
+              help="Run the probing manoeuvre on this target instead of reading LOG (sim: the MuJoCo plant).")
+@click.option("--truth", "truth_pairs", multiple=True, metavar="NAME=VALUE",
+              help="True parameter of the sim plant (repeatable), e.g. --truth box_mass=5 --truth box_friction=0.45.")
+@click.option("--record", type=click.Path(), default=None,
+              help="MCAP to record the sim probe into (default: probe_sim.mcap).")
+@log_options
+@click.option("--params", default=None, metavar="NAMES", help="Free parameters (default: mass, inertia, friction).")
+@click.option("--prior", type=click.Path(), default=None, help="Belief YAML to assess / start from.")
+@click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000))
+@click.option("--generations", default=50, show_default=True, type=click.IntRange(1, 100000),
+              help="CMA-ES generations when identifying from the sim probe.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--threads", default=None, type=click.IntRange(1, 1024))
+@click.option("--out", default=None, type=click.Path(), help="Belief YAML (sim target; default probe_sim.belief.yaml).")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object and nothing else.")
+@click.option("--plot", type=click.Path(), default=None, help="PNG of the identification (sim target).")
+@click.option("--quiet", "-q", is_flag=True)
+def probe_cmd(log, target, truth_pairs, record, topics, map_file, box_size, smooth, params, prior, n_clips,
+              generations, seed, threads, out, force, as_json, plot, quiet):
+    """Probe for a first belief (--target sim), or report what LOG can tell.
+
+    \b
+    amhe probe --target sim --out belief.yaml   scripted lunges against a box in the
+                                                sim plant, recorded and identified
+    amhe probe LOG                              topics, rates, gaps, and how well each
+                                                parameter can be identified from LOG
+    """
+    from .io.reader import inspect_log
+    from .probe import TRUTH_RECORD, assess, simulate_probe
+    free = parse_names(params)
+    if target is None:
+        if log is None:
+            raise AmheError("probe needs a LOG to assess, or --target sim to run the probing manoeuvre")
+        info = inspect_log(log, topics=parse_topics(topics, map_file) or None)
+        problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
+                               box_size=parse_box_size(box_size), smooth=smooth)
+        curv = assess(problem.traj, problem.scene, problem.space, n_clips=n_clips, seed=seed, nthread=threads)
+        sp = problem.space
+        report = {"log": info.to_dict(), "parameters": {}, "labels": sp.labels,
+                  "correlation": curv.corr.tolist(), "fisher": curv.fisher.tolist(), "cost_at_prior": curv.cost}
+        for i, label in enumerate(sp.labels):
+            report["parameters"][label] = {"prior": float(sp.mean0[i]), "prior_std": float(sp.std0[i]),
+                                           "std": float(curv.std[i]),
+                                           "information_gain": float(sp.std0[i] / max(curv.std[i], 1e-12))}
+        if as_json:
+            click.echo(json.dumps(report, default=str))
+            return
+        click.echo(str(info))
+        click.echo(f"\nidentifiability from {n_clips} clips, at the prior ({problem.prior_source}):")
+        click.echo(f"{'parameter':<16} {'prior':>9} {'prior std':>10} {'std':>10} {'prior std/std':>13}")
+        for label, rec in report["parameters"].items():
+            click.echo(f"{label:<16} {rec['prior']:>9.4g} {rec['prior_std']:>10.3g} {rec['std']:>10.3g} "
+                       f"{rec['information_gain']:>13.3g}")
+        if "box_mass" in sp.labels and "box_friction" in sp.labels:
+            i, j = sp.labels.index("box_mass"), sp.labels.index("box_friction")
+            click.echo(f"mass-friction correlation {curv.corr[i, j]:+.2f}")
+        return
+    if log is not None:
+        raise AmheError("give either LOG or --target sim, not both")
+    truth = {"box_mass": 5.0, "box_friction": 0.45}
+    truth.update(parse_truth(truth_pairs))
+    record_path = _out_path(record or "probe_sim.mcap", "probe_sim", "", force)
+    out_path = _out_path(out or "probe_sim.belief.yaml", "probe_sim", "", force)
+    from .plot import check_plot_path, plot_identify
+    plot_path = check_plot_path(plot)
+    from .io.writer import write_mcap
+    traj = simulate_probe(truth, seed=seed)
+    truth_all = traj.meta["truth"]
+    write_mcap(record_path, traj, overwrite=force, metadata={
+        TRUTH_RECORD: {k: json.dumps(v) for k, v in truth_all.items()},
+        "amhe_probe": {"manoeuvre": "lunges 0.06, 0.09, 0.12 m", "seed": str(seed), "amhe_version": __version__},
+    })
+    if not as_json:
+        click.echo(f"recorded the sim probe ({traj.duration:.1f} s) to {record_path}", err=True)
+    problem = load_problem(str(record_path), params=free, prior=prior, box_size=parse_box_size(box_size))
+    settings = IdentifySettings(params=free, n_clips=n_clips, max_gen=generations, seed=seed)
+    result = run_identify(problem, settings, quiet or as_json, threads)
+    belief = belief_from_result(result, problem, "probe --target sim", str(record_path))
+    belief.provenance["truth"] = truth_all
+    belief.save(out_path, force=force)
+    if plot_path is not None:
+        from .cost import RolloutCost
+        with RolloutCost(problem.scene, problem.space, result.clips, nthread=threads) as cost:
+            plot_identify(plot_path, result, cost.rollout)
+    if as_json:
+        s = result.summary()
+        s.update(belief=str(out_path), log=str(record_path), truth={k: truth_all[k] for k in problem.space.free})
+        click.echo(json.dumps(s))
+        return
+    print_summary(result, truth=truth_all)
+    click.echo(f"belief written to {out_path}")
 
 
 def _parse_range(text: str, flag: str) -> tuple[float, float]:

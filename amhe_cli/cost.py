@@ -221,6 +221,23 @@ class RolloutCost:
             qvel[:, idx, h:] = qvel[:, idx, h - 1:h]
         return qpos, qvel
 
+    def residuals(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Whitened state errors ``sqrt(W_x) (x(p) - x^r)`` of feasible candidates.
+
+        Args:
+            Q: (B, d) feasible candidates (see :meth:`ParameterSpace.project`).
+        Returns:
+            (B, N_c, H_max, 2 nv) residuals (zero where unobserved or past a
+            clip's horizon) and (B, N_c) bool, True where the rollout diverged
+            (non-finite, or a coordinate beyond 1 km).
+        """
+        qpos, qvel = self.rollout(Q)
+        c = self.clips
+        err = state_error(self.scene, c.qpos[None], c.qvel[None], qpos, qvel)
+        res = err * np.sqrt(self._wmask)[None]
+        diverged = ~np.isfinite(res).all(axis=(2, 3)) | (np.abs(qpos).max(axis=(2, 3)) > 1e3)
+        return np.where(diverged[:, :, None, None], 0.0, res), diverged
+
     def evaluate(self, P: np.ndarray) -> CostBreakdown:
         """Evaluate ``J`` on a batch.
 
@@ -234,13 +251,8 @@ class RolloutCost:
         if P.shape[1] != self.space.dim:
             raise ValueError(f"candidates have {P.shape[1]} columns, expected {self.space.dim} ({self.space.labels})")
         Q, moved = self.space.project(P)
-        qpos, qvel = self.rollout(Q)
-        c = self.clips
-        err = state_error(self.scene, c.qpos[None], c.qvel[None], qpos, qvel)
-        per_step = (err ** 2 * self._wmask[None]).sum(-1)  # (B, N_c, H_max)
-        per_clip = per_step.sum(-1)
-        diverged = ~np.isfinite(per_clip) | (np.abs(qpos).max(axis=(2, 3)) > 1e3)
-        per_clip = np.where(diverged, DIVERGED, per_clip)
+        res, diverged = self.residuals(Q)
+        per_clip = np.where(diverged, DIVERGED, (res ** 2).sum(axis=(2, 3)))
         data = per_clip.sum(axis=1)
         prior = self.prior_weight * (((Q - self.prior_mean) / self.space.std0) ** 2).sum(axis=1)
         penalty = PENALTY * moved

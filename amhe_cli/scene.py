@@ -213,10 +213,14 @@ class Scene:
         return out
 
 
-def standing_sinkage(scene: "Scene") -> float:
-    """Depth [m] (negative) of the foot-sphere bottoms below the floor when our Go1 stands at rest.
+def resting_offsets(scene: "Scene") -> tuple[float, float]:
+    """How deep our model's bodies rest in the floor [m] (negative = below the surface).
 
-    Simulated once per call: 1.5 s of standing with the PD targets at the stand pose.
+    Simulates 1.5 s of the Go1 standing (PD targets at the stand pose) with the
+    box resting far from it and returns (mean foot-sphere bottom, box bottom)
+    relative to their floors. Soft contacts let a standing Go1 sink ~2 cm and
+    the box ~0.1 mm; a log recorded in the same physics shows the same depths,
+    so floors inferred from it must add them back.
     """
     m = scene.model
     d = mujoco.MjData(m)
@@ -224,9 +228,11 @@ def standing_sinkage(scene: "Scene") -> float:
     d.qpos[:] = qpos
     d.ctrl[:] = STAND_JOINTS
     mujoco.mj_step(m, d, nstep=int(1.5 / m.opt.timestep))
-    robot_floor = scene.config.floor_height if scene.config.robot_floor_height is None \
-        else scene.config.robot_floor_height
-    return float(np.mean(scene.foot_bottoms(d.qpos[None])[0]) - robot_floor)
+    cfg = scene.config
+    robot_floor = cfg.floor_height if cfg.robot_floor_height is None else cfg.robot_floor_height
+    feet = float(np.mean(scene.foot_bottoms(d.qpos[None])[0]) - robot_floor)
+    box = float(d.qpos[scene.box_qpos[2]] - cfg.box_size[2] / 2 - cfg.floor_height)
+    return feet, box
 
 
 def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
@@ -306,16 +312,18 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
     """
     cfg = base or SceneConfig()
     size = tuple(float(s) for s in (box_size or cfg.box_size))
-    scene = Scene(replace(cfg, regions=(FloorRegion(mu=0.5),), robot_floor_height=None, floor_height=0.0))
+    scene = Scene(replace(cfg, box_size=size, regions=(FloorRegion(mu=0.5),), robot_floor_height=None,
+                          floor_height=0.0))
     qpos, _ = scene.qpos_qvel(traj)
     idx = np.linspace(0, len(traj) - 1, min(len(traj), 400)).astype(int)
     # soft foot contacts (solimp 0.015/1/0.031) let a standing Go1 sink ~2 cm into the floor:
     # the recorded feet sit that deep too, so subtract our model's own resting sinkage
     fk_floor = float(np.median(scene.foot_bottoms(qpos[idx]).min(axis=1)))
-    robot_floor = fk_floor - standing_sinkage(scene)
+    feet_depth, box_depth = resting_offsets(scene)
+    robot_floor = fk_floor - feet_depth
     speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
     rest = speed <= max(0.01, np.percentile(speed, 30))
-    box_floor = float(np.median(traj.box_pos[rest, 2])) - size[2] / 2
+    box_floor = float(np.median(traj.box_pos[rest, 2])) - size[2] / 2 - box_depth
     if abs(box_floor - robot_floor) > size[2] / 2:
         raise AmheError(f"box rests {box_floor - robot_floor:+.3f} m from the robot's floor: expected a box of height "
                         f"{size[2]:.3f} m on the floor the robot stands on (check --box-size and the log's frames)")

@@ -1,17 +1,23 @@
-"""Uncertainty of an estimate from the cost's local shape (Fisher information).
+"""Uncertainty of parameters from the shape of the cost (Fisher information).
 
-The cost is a sum over clips, ``J(p) = Σ_k J_k(p) + ||p - p0||²_{W_p}``. Around a
-point ``p̂`` we take, by central finite differences through the shared cost
-module (one batch of ``1 + 2d + 2d(d-1)`` candidates):
+With whitened residuals ``r(p) = sqrt(W_x) (x(p) - x^r)`` the data term is
+``J = Σ_k ||r_k(p)||²``, twice a negative log-likelihood if the ``W_x`` σ's were
+the real noise levels. Around a point ``p`` the residual Jacobian ``G = ∂r/∂p``
+is taken by central differences through the shared cost module (one batch of
+``2d + 1`` candidates), giving:
 
-* ``A = ∇² Σ_k J_k`` — the data curvature;
-* ``g_k = ∇ J_k`` — each clip's gradient, and ``S`` their centred scatter.
+* the Gauss–Newton **Fisher information** ``F = Gᵀ G`` — positive semi-definite
+  anywhere, so it also answers "how much could this log tell?" at the prior,
+  before anything is fitted (``amhe probe LOG``);
+* per-clip scores ``s_k = 2 G_kᵀ r_k`` and the **sandwich** covariance
+  ``A⁻¹ S A⁻¹`` with ``A = 2F`` and ``S`` the scores' scatter — the spread of the
+  optimum over resampled clips, robust to residuals correlated along a clip.
 
-The data's Fisher information is the sandwich form ``F = A S⁻¹ A`` (its inverse
-``A⁻¹ S A⁻¹`` is the M-estimator covariance, robust to autocorrelated residuals
-and model mismatch because it measures how much the clips *disagree*, not how
-big the residuals are), and the belief is ``Σ = (F + W_p)⁻¹`` with
-``W_p = diag(1/σ_prior²)``. A parameter the data cannot see keeps its prior σ.
+At an estimate, the belief takes the more conservative of the sandwich and the
+least-squares covariance ``s² F⁻¹`` (``s²`` = residual variance per whitened
+component, i.e. ``J`` relative to the ``W_x`` noise levels); both include the
+prior, ``Σ = (F + W_p)⁻¹``. Neither includes a bias from model mismatch: the
+residual rms reported beside it is the flag for that.
 """
 
 from __future__ import annotations
@@ -29,85 +35,76 @@ class Curvature:
 
     Attributes:
         point: (d,) where it was evaluated.
-        hessian: (d, d) data curvature ``A``.
-        fisher: (d, d) data information ``F``.
-        cov: (d, d) belief covariance ``(F + W_p)⁻¹``.
+        fisher: (d, d) Gauss–Newton information ``Gᵀ G`` of the data.
+        cov: (d, d) belief covariance (prior included).
         std: (d,) sqrt of its diagonal.
         corr: (d, d) correlation matrix.
-        cost: J at ``point``.
+        cost: ``J`` at ``point``.
+        residual_scale: ``s²``, mean squared whitened residual per observed component.
     """
 
     point: np.ndarray
-    hessian: np.ndarray
     fisher: np.ndarray
     cov: np.ndarray
     std: np.ndarray
     corr: np.ndarray
     cost: float
+    residual_scale: float
 
 
-def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.02) -> Curvature:
-    """Fisher information and belief covariance of the parameters at ``point`` (d,).
+def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_estimate: bool = True) -> Curvature:
+    """Fisher information and belief covariance of the free parameters at ``point`` (d,).
 
-    ``rel_step`` sets the finite-difference step per coordinate as a fraction of
-    ``max(|p_i|, prior σ_i)`` — large enough to step over contact-solver noise.
+    Args:
+        cost: the shared cost (its clips, weights and prior).
+        point: (d,) parameters.
+        rel_step: finite-difference step per coordinate as a fraction of
+            ``max(|p_i|, prior σ_i)``.
+        at_estimate: True at a fitted estimate (conservative of sandwich and
+            ``s² F⁻¹``); False at a prior (``F⁻¹``: what the log could tell if the
+            ``W_x`` σ's are the noise levels).
     """
     space = cost.space
-    p = np.asarray(point, dtype=float)
+    p = space.project(np.asarray(point, dtype=float))[0][0]
     d = p.size
     h = rel_step * np.maximum(np.abs(p), space.std0)
-    # keep steps inside the bounds
-    h = np.minimum(h, 0.49 * (space.upper - space.lower))
-    pts = [p.copy()]
+    pts = [p]
     for i in range(d):
-        for s in (1, -1):
+        for sgn in (1.0, -1.0):
             q = p.copy()
-            q[i] += s * h[i]
+            q[i] += sgn * h[i]
             pts.append(q)
-    pairs = [(i, j) for i in range(d) for j in range(i + 1, d)]
-    for i, j in pairs:
-        for si, sj in ((1, 1), (1, -1), (-1, 1), (-1, -1)):
-            q = p.copy()
-            q[i] += si * h[i]
-            q[j] += sj * h[j]
-            pts.append(q)
-    pts = np.array(pts)
-    pts, _ = space.project(pts)  # stay feasible; keeps the differences honest at bounds
-    br = cost.evaluate(pts)
-    Jk = np.where(br.diverged, np.nan, br.per_clip)  # (n_pts, N_c)
-    Jk = np.nan_to_num(Jk, nan=np.nanmax(Jk) if np.isfinite(Jk).any() else 0.0)
-    c0 = Jk[0]
-    g = np.empty((Jk.shape[1], d))
-    A = np.empty((d, d))
-    total = Jk.sum(axis=1)
-    for i in range(d):
-        up, dn = Jk[1 + 2 * i], Jk[2 + 2 * i]
-        hi = pts[1 + 2 * i, i] - pts[2 + 2 * i, i]
-        g[:, i] = (up - dn) / hi
-        A[i, i] = (total[1 + 2 * i] - 2 * total[0] + total[2 + 2 * i]) / (hi / 2) ** 2
-    base = 1 + 2 * d
-    for n, (i, j) in enumerate(pairs):
-        pp, pm, mp, mm = total[base + 4 * n:base + 4 * n + 4]
-        A[i, j] = A[j, i] = (pp - pm - mp + mm) / (4 * h[i] * h[j])
-    A = _psd(A)
-    gc = g - g.mean(axis=0)
-    nc = max(g.shape[0], 2)
-    S = gc.T @ gc * nc / (nc - 1)
-    scale = np.maximum(np.abs(np.diag(A)), 1e-12)
-    S_reg = S + 1e-9 * np.diag(np.maximum(np.diag(S), scale * 1e-6))
-    F = _psd(A @ np.linalg.pinv(S_reg) @ A)
-    prior_prec = np.diag(cost.prior_weight / space.std0 ** 2) if cost.prior_weight > 0 else np.zeros((d, d))
-    # a parameter nothing informs keeps a wide belief: its bounds span
+    pts = space.project(np.array(pts))[0]
+    res, diverged = cost.residuals(pts)
+    steps = pts[1::2, np.arange(d)].diagonal() - pts[2::2, np.arange(d)].diagonal()
+    steps = np.where(np.abs(steps) > 0, steps, 1.0)
+    r0 = res[0]  # (N_c, H, 2nv)
+    G = np.stack([(res[1 + 2 * i] - res[2 + 2 * i]) / steps[i] for i in range(d)], axis=-1)  # (N_c, H, 2nv, d)
+    G[diverged.any(axis=0)] = 0.0
+    Gk = G.reshape(G.shape[0], -1, d)
+    rk = r0.reshape(r0.shape[0], -1)
+    F = np.einsum("kni,knj->ij", Gk, Gk)
+    prior_prec = np.diag(cost.prior_weight / space.std0 ** 2)
+    # a parameter nothing informs keeps a belief no wider than its bounds
     prior_prec = prior_prec + np.diag(1.0 / (space.upper - space.lower) ** 2)
+    n_obs = max(int(np.count_nonzero(cost._wmask)), 1)
+    j0 = float((rk ** 2).sum())
+    s2 = j0 / max(n_obs - d, 1)
     cov = np.linalg.inv(F + prior_prec)
+    if at_estimate:
+        cov_ls = np.linalg.inv(F / max(s2, 1e-300) + prior_prec) if s2 > 0 else cov * 0
+        scores = 2.0 * np.einsum("kni,kn->ki", Gk, rk)  # (N_c, d)
+        sc = scores - scores.mean(axis=0)
+        nc = max(scores.shape[0], 2)
+        S = sc.T @ sc * nc / (nc - 1)
+        A_inv = np.linalg.inv(2.0 * F + 2.0 * prior_prec)
+        cov_sw = A_inv @ S @ A_inv
+        cov = cov_ls if np.trace(cov_ls / np.outer(space.std0, space.std0)) >= \
+            np.trace(cov_sw / np.outer(space.std0, space.std0)) else cov_sw
     cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    corr = cov / np.outer(std, std) if np.all(std > 0) else np.eye(d)
-    return Curvature(p, A, F, cov, std, np.clip(corr, -1, 1), float(c0.sum() + br.prior[0] + br.penalty[0]))
-
-
-def _psd(M: np.ndarray) -> np.ndarray:
-    """Symmetric positive semi-definite part of ``M`` (negative eigenvalues zeroed)."""
-    M = 0.5 * (M + M.T)
-    w, V = np.linalg.eigh(M)
-    return (V * np.maximum(w, 0.0)) @ V.T
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / space.std0) ** 2).sum())
+    return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, s2)
