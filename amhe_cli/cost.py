@@ -58,7 +58,11 @@ class StateWeights:
         if unknown:
             from .errors import AmheError
             raise AmheError(f"unknown state group {sorted(unknown)} in W_x: expected {sorted(DEFAULT_SIGMA)}")
-        self.sigma = {**DEFAULT_SIGMA, **self.sigma}
+        self.sigma = {**DEFAULT_SIGMA, **{k: float(v) for k, v in self.sigma.items()}}
+        bad = [k for k, v in self.sigma.items() if not v > 0]
+        if bad:
+            from .errors import AmheError
+            raise AmheError(f"W_x σ of {', '.join(bad)} must be positive (inf leaves a group out)")
 
     def vector(self, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
         """(2 nv,) weights and (2 nv,) role index (into :data:`ROLES`) per tangent component."""
@@ -156,6 +160,7 @@ class RolloutCost:
         self.weights = weights or StateWeights()
         self.prior_weight = float(prior_weight)
         self.prior_mean = space.mean0.copy()
+        self.prior_std = space.std0.copy()
         self._own_pool = pool is None
         self.pool = pool or RolloutPool(scene.model, nthread)
         self._w, self._role = self.weights.vector(scene)
@@ -183,7 +188,10 @@ class RolloutCost:
         """Move the prior ``p0`` (and optionally its σ), e.g. to the previous MHE estimate ``p̂⁻``."""
         self.prior_mean = np.asarray(mean, dtype=float).copy()
         if std is not None:
-            self.space.std0 = np.asarray(std, dtype=float).copy()
+            std = np.asarray(std, dtype=float).copy()
+            if std.shape != self.prior_mean.shape or np.any(std <= 0):
+                raise ValueError(f"prior std must be {self.prior_mean.shape} positive values")
+            self.prior_std = std
 
     def __call__(self, P: np.ndarray) -> np.ndarray:
         """(B,) total cost of (B, d) candidates."""
@@ -254,6 +262,6 @@ class RolloutCost:
         res, diverged = self.residuals(Q)
         per_clip = np.where(diverged, DIVERGED, (res ** 2).sum(axis=(2, 3)))
         data = per_clip.sum(axis=1)
-        prior = self.prior_weight * (((Q - self.prior_mean) / self.space.std0) ** 2).sum(axis=1)
+        prior = self.prior_weight * (((Q - self.prior_mean) / self.prior_std) ** 2).sum(axis=1)
         penalty = PENALTY * moved
         return CostBreakdown(data + prior + penalty, data, prior, penalty, per_clip, diverged)

@@ -144,6 +144,7 @@ class ParameterSpace:
         self.lower = np.array(lo)
         self.upper = np.array(hi)
         self.dim = len(self.labels)
+        self._scratch: dict[int, mujoco.MjData] = {}
         if np.any(self.std0 <= 0):
             raise AmheError("prior standard deviations must be positive")
         self.mean0 = np.clip(self.mean0, self.lower, self.upper)
@@ -222,4 +223,7 @@ class ParameterSpace:
         model.pair_friction[self.scene.region_pairs, 0] = mu
         model.pair_friction[self.scene.region_pairs, 1] = mu
         model.geom_friction[self._robot_geoms, 0] = vals["robot_box_friction"]
-        mujoco.mj_setConst(model, mujoco.MjData(model))
+        data = self._scratch.get(id(model))
+        if data is None:
+            data = self._scratch[id(model)] = mujoco.MjData(model)
+        mujoco.mj_setConst(model, data)

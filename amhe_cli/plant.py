@@ -79,7 +79,6 @@ class SimPlant:
         qvel = np.array(self._log["qvel"])
         t = np.array(self._log["t"])
         n = len(t)
-        ones = np.ones(n, dtype=bool)
         return Trajectory(
             t=t - (t[0] if n else 0.0), dt=self.record_dt,
             base_pos=qpos[:, s.base_qpos[:3]], base_quat=qpos[:, s.base_qpos[3:]],
@@ -89,7 +88,7 @@ class SimPlant:
             box_linvel=qvel[:, s.box_qvel[:3]], box_angvel=qvel[:, s.box_qvel[3:]],
             ctrl=np.array(self._log["ctrl"]),
             kp=self.model.actuator_gainprm[:, 0].copy(), kd=-self.model.actuator_biasprm[:, 2].copy(),
-            observed={r: ones for r in ("joint_states", "base", "box", "joint_commands")},
+            observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": True, "joint_states": True, "box": True},
             meta={"source": "sim", "truth": {k: _plain(v) for k, v in self.truth_values.items()},
                   "scene": replace(self.config).to_dict()},

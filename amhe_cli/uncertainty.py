@@ -84,7 +84,7 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     Gk = G.reshape(G.shape[0], -1, d)
     rk = r0.reshape(r0.shape[0], -1)
     F = np.einsum("kni,knj->ij", Gk, Gk)
-    prior_prec = np.diag(cost.prior_weight / space.std0 ** 2)
+    prior_prec = np.diag(cost.prior_weight / cost.prior_std ** 2)
     # a parameter nothing informs keeps a belief no wider than its bounds
     prior_prec = prior_prec + np.diag(1.0 / (space.upper - space.lower) ** 2)
     n_obs = max(int(np.count_nonzero(cost._wmask)), 1)
@@ -106,5 +106,5 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
     np.fill_diagonal(corr, 1.0)
-    total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / space.std0) ** 2).sum())
+    total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
     return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, s2)

@@ -1,0 +1,560 @@
+"""Tests of the core pipeline: scene, parameters, clips, cost, uncertainty, identify, plant.
+
+One synthetic log is generated per module (0.2 s of CPU): the simulated Go1
+stands behind a 5 kg box (box–floor μ 0.45) and lunges three times
+(:func:`~amhe_cli.maneuver.lunge_schedule`), so the head bumps the box and it
+slides free three times. Everything downstream is checked against that known
+truth: the cost is lowest there, clips rolled out under the truth reproduce the
+log, ``identify`` recovers it.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+import pytest
+
+from amhe_cli.clips import ROLES, make_clips, sample_clips
+from amhe_cli.cost import DEFAULT_SIGMA, RolloutCost, StateWeights
+from amhe_cli.errors import AmheError
+from amhe_cli.identify import IdentifySettings, identify
+from amhe_cli.maneuver import lunge_schedule
+from amhe_cli.params import PARAMETERS, ParameterSpace, parse_names
+from amhe_cli.plant import SimPlant
+from amhe_cli.scene import (
+    STAND_JOINTS,
+    FloorRegion,
+    Scene,
+    SceneConfig,
+    set_pd_gains,
+    uniform_box_inertia,
+)
+from amhe_cli.trajectory import GO1_JOINTS
+from amhe_cli.uncertainty import curvature
+
+TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
+#: the standing robot's head front is at x ≈ 0.28 m; box half-size 0.19 m; 1 cm gap
+BOX_XY = (0.28 + 0.19 + 0.01, 0.0)
+G = 9.81
+
+
+def _generate(disable_warmstart: bool = False):
+    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+    if disable_warmstart:
+        plant.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_WARMSTART
+    q, _ = plant.scene.standing_state(box_xy=BOX_XY)
+    plant.reset(q)
+    for u in lunge_schedule():
+        plant.step(u)
+    return plant, plant.trajectory()
+
+
+@pytest.fixture(scope="module")
+def log():
+    return _generate()
+
+
+@pytest.fixture(scope="module")
+def traj(log):
+    return log[1]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return Scene(SceneConfig())
+
+
+@pytest.fixture(scope="module")
+def space2(scene):
+    return ParameterSpace(scene, free=("box_mass", "box_friction"))
+
+
+@pytest.fixture(scope="module")
+def clips(traj, scene):
+    return sample_clips(traj, scene, 12, rng=np.random.default_rng(0))
+
+
+@pytest.fixture(scope="module")
+def cost(scene, space2, clips):
+    with RolloutCost(scene, space2, clips, prior_weight=0.0) as c:
+        yield c
+
+
+def _truth_vec(space):
+    return space.vector(TRUTH)
+
+
+def _box_speed(traj):
+    return np.linalg.norm(traj.box_linvel[:, :2], axis=1)
+
+
+def _independent_masks(traj):
+    """Deep copy of ``traj`` whose role masks are separate arrays (see the plant aliasing test)."""
+    t = copy.deepcopy(traj)
+    t.observed = {k: np.array(v, dtype=bool, copy=True) for k, v in t.observed.items()}
+    return t
+
+
+# --------------------------------------------------------------------------- the log itself
+def test_generated_log_has_three_bumps(traj):
+    """Sanity of the fixture every other test relies on: the box really is pushed, three times."""
+    assert abs(traj.dt - 0.002) < 1e-12
+    assert 6.5 < traj.duration < 7.5
+    moving = _box_speed(traj) > 0.02
+    onsets = np.flatnonzero(np.diff(moving.astype(int)) == 1)
+    assert len(onsets) == 3
+    assert traj.box_pos[-1, 0] - traj.box_pos[0, 0] > 0.05  # it ends further away
+    assert _box_speed(traj).max() > 0.2
+
+
+# --------------------------------------------------------------------------- scene
+def test_scene_actuators_in_go1_order(scene):
+    m = scene.model
+    assert m.nu == 12
+    names = [mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_JOINT, m.actuator_trnid[i, 0]) for i in range(m.nu)]
+    assert names == list(GO1_JOINTS)
+    # the scene's own qpos addresses point at those joints too
+    for k, name in enumerate(GO1_JOINTS):
+        j = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+        assert scene.joint_qpos[k] == m.jnt_qposadr[j]
+        assert scene.joint_qvel[k] == m.jnt_dofadr[j]
+
+
+def test_scene_robot_mass(scene):
+    m = scene.model
+    robot = [b for b in range(1, m.nbody) if b != scene.box_body]
+    expected = 5.204 + 4 * (0.68 + 1.009 + 0.195862)  # DESIGN.md §5
+    assert m.body_mass[robot].sum() == pytest.approx(expected, abs=1e-6)
+    assert m.body_mass[robot].sum() == pytest.approx(12.74, abs=0.01)
+    assert m.body_mass[scene.box_body] == pytest.approx(SceneConfig().box_mass)
+
+
+@pytest.mark.parametrize("mu", [0.3, 0.6])
+def test_box_floor_friction_is_the_pair_value(mu):
+    """A box launched at 1 m/s slides v²/(2 μ g): box–floor friction is exactly the pair's μ."""
+    s = Scene(SceneConfig(regions=(FloorRegion(mu=mu),)))
+    m = s.model
+    d = mujoco.MjData(m)
+    q, _ = s.standing_state(box_xy=(3.0, 0.0))  # robot far away
+    d.qpos[:] = q
+    d.ctrl[:] = STAND_JOINTS
+    mujoco.mj_step(m, d, nstep=100)  # box settles onto the floor
+    box_contacts = [i for i in range(d.ncon)
+                    if s.box_body in (m.geom_bodyid[d.contact.geom1[i]], m.geom_bodyid[d.contact.geom2[i]])]
+    assert box_contacts, "box does not touch the floor"
+    for i in box_contacts:  # every box-floor contact carries the pair's coefficient, not a max()
+        assert d.contact.friction[i][0] == pytest.approx(mu, abs=1e-12)
+        assert d.contact.friction[i][1] == pytest.approx(mu, abs=1e-12)
+    x0 = d.qpos[s.box_qpos[0]]
+    d.qvel[s.box_qvel[0]] = 1.0
+    mujoco.mj_step(m, d, nstep=int(round(1.0 / m.opt.timestep)))
+    dist = d.qpos[s.box_qpos[0]] - x0
+    assert abs(d.qvel[s.box_qvel[0]]) < 1e-3  # it has stopped
+    assert dist == pytest.approx(1.0 / (2 * mu * G), rel=0.03)
+
+
+def test_set_pd_gains_changes_actuator_force(scene):
+    m = copy.copy(scene.model)
+    d = mujoco.MjData(m)
+    q, _ = scene.standing_state(box_xy=(3.0, 0.0))
+
+    def force(kp, kd):
+        set_pd_gains(m, kp, kd)
+        d.qpos[:] = q
+        d.qvel[:] = 0
+        d.qvel[scene.joint_qvel] = 0.5
+        d.ctrl[:] = STAND_JOINTS + 0.1
+        mujoco.mj_forward(m, d)
+        return d.actuator_force.copy()
+
+    np.testing.assert_allclose(force(55.0, 3.0), 55.0 * 0.1 - 3.0 * 0.5, atol=1e-9)
+    np.testing.assert_allclose(force(30.0, 2.0), 30.0 * 0.1 - 2.0 * 0.5, atol=1e-9)
+    kp = np.linspace(20, 60, 12)
+    kd = np.linspace(1, 4, 12)
+    np.testing.assert_allclose(force(kp, kd), kp * 0.1 - kd * 0.5, atol=1e-9)
+    # the template is untouched
+    assert scene.model.actuator_gainprm[0, 0] == pytest.approx(55.0)
+    # and SceneConfig gains reach the compiled model
+    s2 = Scene(SceneConfig(kp=tuple([40.0] * 12), kd=tuple([2.5] * 12)))
+    np.testing.assert_allclose(s2.model.actuator_gainprm[:, 0], 40.0)
+    np.testing.assert_allclose(s2.model.actuator_biasprm[:, 1:3], [[-40.0, -2.5]] * 12)
+
+
+# --------------------------------------------------------------------------- params
+def _push_speed(scene, space, mass, force=50.0, duration=0.2):
+    """Box x-speed after ``force`` [N] at its centre for ``duration`` [s], box friction 0.01."""
+    m = copy.copy(scene.model)
+    space.write(m, space.vector({"box_mass": mass, "box_friction": 0.01}))
+    d = mujoco.MjData(m)
+    q, _ = scene.standing_state(box_xy=(3.0, 0.0))
+    d.qpos[:] = q
+    d.ctrl[:] = STAND_JOINTS
+    mujoco.mj_step(m, d, nstep=50)
+    d.xfrc_applied[scene.box_body, 0] = force
+    mujoco.mj_step(m, d, nstep=int(round(duration / m.opt.timestep)))
+    return d.qvel[scene.box_qvel[0]]
+
+
+def test_write_heavier_box_is_slower(scene, space2):
+    v5 = _push_speed(scene, space2, 5.0)
+    v10 = _push_speed(scene, space2, 10.0)
+    assert v5 > 0.5
+    assert v5 / v10 == pytest.approx(2.0, rel=0.05)
+    # and it matches F/m - μ g within 5 %
+    assert v5 == pytest.approx((50.0 / 5.0 - 0.01 * G) * 0.2, rel=0.05)
+
+
+def test_write_calls_set_const(scene, space2):
+    m = copy.copy(scene.model)
+    before = m.body_invweight0[scene.box_body].copy()
+    space2.write(m, space2.vector({"box_mass": 10.0}))
+    assert m.body_mass[scene.box_body] == 10.0
+    # a free body's translational inverse weight is 1/m: refreshed by mj_setConst
+    assert m.body_invweight0[scene.box_body, 0] == pytest.approx(1.0 / 10.0, rel=1e-3)
+    assert before[0] == pytest.approx(1.0 / SceneConfig().box_mass, rel=1e-3)
+    # friction reaches every box-floor pair; the template is untouched
+    space2.write(m, space2.vector({"box_friction": 0.77}))
+    np.testing.assert_allclose(m.pair_friction[scene.region_pairs, :2], 0.77)
+    assert scene.model.body_mass[scene.box_body] == pytest.approx(SceneConfig().box_mass)
+
+
+def _triangle_ok(inertia, tol=1e-9):
+    a, b, c = inertia.T
+    return np.all(a <= b + c + tol) & np.all(b <= a + c + tol) & np.all(c <= a + b + tol)
+
+
+def test_project_bounds_and_inertia_triangle(scene):
+    space = ParameterSpace(scene)  # mass, inertia (3), friction
+    assert space.labels == ["box_mass", "box_inertia_0", "box_inertia_1", "box_inertia_2", "box_friction"]
+    sl = space.slices()["box_inertia"]
+    rng = np.random.default_rng(1)
+    P = np.column_stack([
+        rng.uniform(-5, 60, 200),
+        np.exp(rng.uniform(np.log(1e-6), np.log(10), (200, 3))),
+        rng.uniform(-1, 3, 200),
+    ])
+    P[0, sl] = [3.0, 1e-4, 1e-4]   # the worst violation inside the bounds
+    P[1, sl] = [50.0, 0.0, 0.0]    # out of bounds and infeasible
+    Q, moved = space.project(P)
+    assert np.all(Q >= space.lower - 1e-12) and np.all(Q <= space.upper + 1e-12)
+    assert _triangle_ok(Q[:, sl])
+    infeasible = np.any(P < space.lower, axis=1) | np.any(P > space.upper, axis=1) | ~np.array(
+        [_triangle_ok(p[None, sl], tol=0.0) for p in P])
+    assert infeasible.sum() > 50
+    assert np.all(moved[infeasible] > 0)
+    # feasible candidates pass through unchanged with zero penalty
+    feas = np.tile(space.mean0, (5, 1))
+    feas[:, 0] = [0.5, 1, 5, 20, 39]
+    feas[:, sl] = uniform_box_inertia(2.0, (0.3, 0.5, 0.2))
+    Qf, mf = space.project(feas)
+    np.testing.assert_array_equal(Qf, feas)
+    np.testing.assert_array_equal(mf, 0.0)
+
+
+def test_parse_names():
+    with pytest.raises(AmheError, match="nope"):
+        parse_names("box_mass,nope")
+    with pytest.raises(AmheError):
+        parse_names("")
+    assert parse_names("box_friction, box_mass") == ("box_mass", "box_friction")  # canonical order
+    assert parse_names(None) == ("box_mass", "box_inertia", "box_friction")
+
+
+def test_inertia_follows_mass_when_not_free(scene, space2):
+    prior_inertia = space2.prior_values["box_inertia"]
+    prior_mass = space2.prior_values["box_mass"][0]
+    vals = space2.values(np.array([2 * prior_mass, 0.5]))
+    np.testing.assert_allclose(vals["box_inertia"], 2 * prior_inertia)
+    m = copy.copy(scene.model)
+    space2.write(m, np.array([2 * prior_mass, 0.5]))
+    np.testing.assert_allclose(m.body_inertia[scene.box_body], 2 * prior_inertia)
+    # a free inertia does not follow
+    space5 = ParameterSpace(scene)
+    vec = space5.mean0.copy()
+    vec[0] *= 2
+    np.testing.assert_allclose(space5.values(vec)["box_inertia"], space5.prior_values["box_inertia"])
+
+
+# --------------------------------------------------------------------------- clips
+def test_make_clips_alignment(traj, scene):
+    starts = np.array([10, 700, 1500])
+    horizons = np.array([5, 60, 30])
+    c = make_clips(traj, scene, starts, horizons)
+    qpos_all, qvel_all = scene.qpos_qvel(traj)
+    nq, nv = scene.model.nq, scene.model.nv
+    for k, (s, h) in enumerate(zip(starts, horizons)):
+        # initial state = the state before step s, at time t[s]
+        assert c.initial_state[k, 0] == pytest.approx(traj.t[s])
+        np.testing.assert_array_equal(c.initial_state[k, 1:1 + nq], qpos_all[s])
+        np.testing.assert_array_equal(c.initial_state[k, 1 + nq:1 + nq + nv], qvel_all[s])
+        # row 0 of the recorded states is the state after step s; controls row 0 drives step s
+        np.testing.assert_array_equal(c.qpos[k, 0], qpos_all[s + 1])
+        np.testing.assert_array_equal(c.qvel[k, 0], qvel_all[s + 1])
+        np.testing.assert_array_equal(c.control[k, 0], traj.ctrl[s])
+        np.testing.assert_array_equal(c.qpos[k, h - 1], qpos_all[s + h])
+        np.testing.assert_array_equal(c.control[k, h - 1], traj.ctrl[s + h - 1])
+        assert c.observed[k, :h].all() and not c.observed[k, h:].any()
+    assert c.steps == horizons.sum()
+    with pytest.raises(AmheError):
+        make_clips(traj, scene, [len(traj) - 5], [10])
+
+
+def test_rollout_matches_mj_step_replay(cost, clips, scene, traj):
+    """The cost's batched rollout equals a plain mj_step replay from the clip's initial state."""
+    truth = _truth_vec(cost.space)
+    qpos, qvel = cost.rollout(truth[None])
+    m = copy.copy(scene.model)
+    cost.space.write(m, truth)
+    for k in range(len(clips)):
+        d = mujoco.MjData(m)
+        mujoco.mj_setState(m, d, clips.initial_state[k], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        for t in range(clips.horizon[k]):
+            d.ctrl[:] = clips.control[k, t]
+            mujoco.mj_step(m, d)
+            np.testing.assert_allclose(qpos[0, k, t], d.qpos, atol=1e-12, rtol=0)
+            np.testing.assert_allclose(qvel[0, k, t], d.qvel, atol=1e-10, rtol=0)
+
+
+def test_truth_rollout_reproduces_log_exactly_without_warmstart(scene):
+    """Same model, same dt: with the solver's warm start off in plant and cost the match is exact.
+
+    (The warm start ``qacc_warmstart`` is not part of ``mjSTATE_FULLPHYSICS`` and not in any
+    log, so with it on the clip starts cold while the plant ran warm: see the next test.)
+    """
+    plant, traj = _generate(disable_warmstart=True)
+    s = Scene(SceneConfig())
+    s.model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_WARMSTART
+    space = ParameterSpace(s, free=("box_mass", "box_friction"))
+    c = sample_clips(traj, s, 12, rng=np.random.default_rng(0))
+    with RolloutCost(s, space, c, prior_weight=0.0) as cost:
+        qpos, qvel = cost.rollout(_truth_vec(space)[None])
+        assert np.abs(qpos[0] - c.qpos).max() < 1e-9
+        assert np.abs(qvel[0] - c.qvel).max() < 1e-9
+        assert cost.evaluate(_truth_vec(space)[None]).data[0] < 1e-12
+
+
+def test_truth_rollout_reproduces_log(cost, clips):
+    """With the default (warm-started) solver: positions within 1e-6, velocities within 1e-4.
+
+    The remaining velocity error (≈1e-5 m/s on clips with active contacts) comes from the
+    Newton solver's warm start: the plant's step s began from step s-1's ``qacc_warmstart``,
+    the clip's from zero, and the solver stops at its tolerance at slightly different points.
+    """
+    qpos, qvel = cost.rollout(_truth_vec(cost.space)[None])
+    assert np.abs(qpos[0] - clips.qpos).max() < 1e-6
+    assert np.abs(qvel[0] - clips.qvel).max() < 1e-4
+    assert cost.evaluate(_truth_vec(cost.space)[None]).data[0] < 1e-4
+
+
+def test_sample_clips_deterministic_and_prefers_moving_box(traj, scene):
+    a = sample_clips(traj, scene, 16, rng=np.random.default_rng(3))
+    b = sample_clips(traj, scene, 16, rng=np.random.default_rng(3))
+    c = sample_clips(traj, scene, 16, rng=np.random.default_rng(4))
+    np.testing.assert_array_equal(a.start, b.start)
+    np.testing.assert_array_equal(a.horizon, b.horizon)
+    np.testing.assert_array_equal(a.control, b.control)
+    assert not np.array_equal(a.start, c.start)
+    assert np.all((a.horizon >= 50) & (a.horizon <= 100))  # 0.1-0.2 s at 2 ms
+    assert len(np.unique(a.start)) == 16
+    speed = _box_speed(traj)
+    moving_share = (speed > 0.02).mean()
+    assert moving_share < 0.2  # the box rests most of the log ...
+    for cl in (a, c):
+        moves = [speed[s:s + h + 1].max() > 0.02 for s, h in zip(cl.start, cl.horizon)]
+        assert np.mean(moves) >= 0.75  # ... yet most clips see it move
+
+
+def test_sample_clips_avoid_gaps(traj, scene):
+    t = _independent_masks(traj)
+    moving = np.flatnonzero(_box_speed(t) > 0.02)
+    i, j = int(moving[0]) + 20, int(moving[0]) + 140  # a box drop-out in the first push
+    t.observed["box"][i:j] = False
+    for seed in range(3):
+        c = sample_clips(t, scene, 16, rng=np.random.default_rng(seed))
+        for s, h in zip(c.start, c.horizon):
+            assert s + h < i or s >= j, f"clip {s}..{s + h} covers the gap {i}..{j}"
+    with pytest.raises(AmheError):  # nothing left long enough
+        t2 = _independent_masks(traj)
+        t2.observed["base"][::40] = False
+        sample_clips(t2, scene, 4)
+
+
+# --------------------------------------------------------------------------- cost
+def test_truth_scores_lowest(cost):
+    truth = _truth_vec(cost.space)
+    P = np.array([truth, [4.0, 0.45], [6.0, 0.45], [5.0, 0.35], [5.0, 0.55]])
+    J = cost(P)
+    assert np.all(np.isfinite(J))
+    assert np.all(J[0] < J[1:])
+    assert J[0] < 1e-4 < 1.0 < J[1:].min()
+
+
+def test_batch_equals_single_and_deterministic(scene, space2, clips, cost):
+    P = np.array([[5.0, 0.45], [4.2, 0.5], [6.3, 0.38], [3.0, 0.7], [5.5, 0.42]])
+    batch = cost.evaluate(P)
+    single = np.array([cost.evaluate(p[None]).total[0] for p in P])
+    np.testing.assert_allclose(batch.total, single, rtol=1e-12, atol=1e-15)
+    again = cost.evaluate(P)
+    np.testing.assert_array_equal(batch.total, again.total)
+    np.testing.assert_array_equal(batch.per_clip, again.per_clip)
+    np.testing.assert_array_equal(cost.evaluate(P[::-1]).total[::-1], batch.total)
+    # independent of the thread count
+    with RolloutCost(scene, space2, clips, prior_weight=0.0, nthread=1) as one:
+        np.testing.assert_array_equal(one.evaluate(P).total, batch.total)
+    np.testing.assert_allclose(batch.per_clip.sum(axis=1), batch.data)
+    np.testing.assert_allclose(batch.total, batch.data + batch.prior + batch.penalty)
+
+
+def test_rollout_step_counter(cost, clips):
+    before = cost.rollout_steps
+    cost.evaluate(np.tile(_truth_vec(cost.space), (3, 1)))
+    assert cost.rollout_steps - before == 3 * clips.steps
+
+
+def test_extreme_candidates_never_nan(scene, clips):
+    space = ParameterSpace(scene, free=("box_mass", "box_friction", "robot_box_friction"))
+    lo, hi = space.lower, space.upper
+    P = np.array([
+        [lo[0], hi[1], hi[2]],
+        [lo[0], lo[1], lo[2]],
+        [hi[0], lo[1], hi[2]],
+        [hi[0], hi[1], lo[2]],
+        [1e-6, 0.45, 0.6],     # out of bounds: projected and charged
+        [-1.0, -1.0, -1.0],
+        [1e3, 1e3, 1e3],
+    ])
+    with RolloutCost(scene, space, clips) as c:
+        br = c.evaluate(P)
+    assert np.all(np.isfinite(br.total)) and np.all(np.isfinite(br.per_clip))
+    assert np.all(br.penalty[:4] == 0) and np.all(br.penalty[4:] > 0)
+    assert np.all(br.total[4:] > br.data[4:])
+
+
+def test_sigma_inf_removes_a_group(scene, space2, clips):
+    wrong = np.array([[6.0, 0.55]])
+    with RolloutCost(scene, space2, clips, prior_weight=0.0) as c:
+        full = c.evaluate(wrong).data[0]
+    assert full > 1.0
+    parts = {}
+    for g in DEFAULT_SIGMA:
+        only = {k: (DEFAULT_SIGMA[k] if k == g else np.inf) for k in DEFAULT_SIGMA}
+        with RolloutCost(scene, space2, clips, StateWeights(only), prior_weight=0.0) as c:
+            parts[g] = c.evaluate(wrong).data[0]
+    # the data term is additive over groups; each σ=inf removes exactly that group's share
+    assert sum(parts.values()) == pytest.approx(full, rel=1e-9)
+    assert parts["box_pos"] > 0 and parts["box_linvel"] > 0
+    with RolloutCost(scene, space2, clips, StateWeights({"box_pos": np.inf}), prior_weight=0.0) as c:
+        assert c.evaluate(wrong).data[0] == pytest.approx(full - parts["box_pos"], rel=1e-9)
+    nothing = {k: np.inf for k in DEFAULT_SIGMA}
+    with RolloutCost(scene, space2, clips, StateWeights(nothing), prior_weight=0.0) as c:
+        assert c.evaluate(wrong).data[0] == 0.0
+    with pytest.raises(AmheError):
+        StateWeights({"box_speed": 1.0})
+
+
+def test_unobserved_role_weighs_zero(traj, scene, space2):
+    t = _independent_masks(traj)
+    moving = np.flatnonzero(_box_speed(t) > 0.05)
+    s0 = int(moving[0])
+    starts, horizons = np.array([s0, s0 + 200]), np.array([80, 80])
+    wrong = np.array([[6.0, 0.55]])
+    box_off = {k: np.inf for k in DEFAULT_SIGMA if k.startswith("box_")}
+
+    def data(tr, weights=None):
+        c = make_clips(tr, scene, starts, horizons)
+        with RolloutCost(scene, space2, c, weights, prior_weight=0.0) as cost:
+            return cost.evaluate(wrong).per_clip[0], c
+
+    full, _ = data(t)
+    no_box_weights, _ = data(t, StateWeights(box_off))
+    # box unobserved over all of clip 0 (s0+1 .. s0+80 are its recorded states)
+    t.observed["box"][s0 + 1:s0 + 81] = False
+    gap, c = data(t)
+    assert not c.observed[0, :80, ROLES.index("box")].any()
+    assert c.observed[0, :80, ROLES.index("base")].all()
+    assert gap[0] == pytest.approx(no_box_weights[0], rel=1e-9)
+    assert gap[1] == pytest.approx(full[1], rel=1e-12)  # the other clip is untouched
+    assert full[0] > gap[0] > 0
+
+
+# --------------------------------------------------------------------------- uncertainty
+def test_curvature_at_truth(cost):
+    truth = _truth_vec(cost.space)
+    cur = curvature(cost, truth)
+    assert np.all(np.isfinite(cur.std)) and np.all(cur.std > 0)
+    # the log informs both far beyond the prior (σ 3 kg, 0.5)
+    assert cur.std[0] < 0.1 * cost.space.std0[0]
+    assert cur.std[1] < 0.1 * cost.space.std0[1]
+    assert cur.std[0] < 0.25  # kg
+    assert cur.std[1] < 0.03
+    assert np.all(np.abs(cur.corr) <= 1)
+    np.testing.assert_allclose(np.diag(cur.corr), 1.0)
+    assert cur.cost < 1e-3
+
+
+def test_uninformed_parameter_keeps_prior_std(traj, scene):
+    """Clips from the first second (box resting, robot standing clear of it) say nothing about friction."""
+    space = ParameterSpace(scene, free=("box_mass", "box_friction", "robot_box_friction"))
+    rest = make_clips(traj, scene, np.arange(50, 450, 40), np.full(10, 75))
+    assert np.abs(rest.qvel[..., scene.box_qvel[:3]]).max() < 1e-2
+    with RolloutCost(scene, space, rest) as c:
+        cur = curvature(c, space.vector({**TRUTH, "robot_box_friction": 0.6}))
+    assert np.all(np.isfinite(cur.std))
+    for name in ("box_friction", "robot_box_friction"):
+        i = space.labels.index(name)
+        assert cur.std[i] == pytest.approx(space.std0[i], rel=0.05)
+
+
+# --------------------------------------------------------------------------- identify
+def test_identify_recovers_truth(traj):
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+    settings = IdentifySettings(params=("box_mass", "box_friction"), n_clips=12, max_gen=25, popsize=10)
+    res = identify(traj, scene, space, settings)
+    mass, mu = res.estimate
+    with RolloutCost(scene, space, res.clips, prior_weight=settings.prior_weight) as c:
+        j_truth = float(c(_truth_vec(space)[None])[0])
+    why = (f"estimate {res.estimate} after {len(res.history)} generations: J(estimate) = {res.cost_estimate:.4g}, "
+           f"J(truth) = {j_truth:.4g} on the same clips")
+    assert mass == pytest.approx(5.0, rel=0.05), why
+    assert mu == pytest.approx(0.45, abs=0.03), why
+    assert res.cost_estimate < res.cost_prior
+    assert res.residual_rms < 1.0  # the model explains the log
+    assert np.all(np.isfinite(res.curvature.std)) and np.all(res.curvature.std > 0)
+    summ = res.summary()
+    assert set(summ["estimate"]) == {"box_mass", "box_friction"}
+    assert summ["generations"] == len(res.history) <= 25
+
+
+# --------------------------------------------------------------------------- plant
+def test_plant_set_param():
+    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+    b = plant.scene.box_body
+    assert plant.model.body_mass[b] == pytest.approx(5.0)
+    assert plant.model.pair_friction[plant.scene.region_pairs, 0] == pytest.approx(0.45)
+    plant.set_param("box_mass", 6.0)
+    assert plant.model.body_mass[b] == pytest.approx(6.0)
+    np.testing.assert_allclose(plant.model.body_inertia[b], uniform_box_inertia(6.0, SceneConfig().box_size))
+    assert plant.model.body_invweight0[b, 0] == pytest.approx(1 / 6.0, rel=1e-3)
+    assert plant.truth_values["box_mass"] == pytest.approx(6.0)
+    assert plant.model.pair_friction[plant.scene.region_pairs, 0] == pytest.approx(0.45)  # others kept
+
+
+def test_plant_trajectory_records_gains_and_masks(traj):
+    np.testing.assert_allclose(traj.kp, 55.0)
+    np.testing.assert_allclose(traj.kd, 3.0)
+    assert set(traj.observed) == {"joint_states", "base", "box", "joint_commands"}
+    for mask in traj.observed.values():
+        assert mask.shape == (len(traj),) and mask.dtype == bool and mask.all()
+    assert traj.meta["truth"]["box_mass"] == pytest.approx(5.0)
+    assert set(PARAMETERS) <= set(traj.meta["truth"])
+    np.testing.assert_allclose(np.diff(traj.t), traj.dt, atol=1e-9)
+    # ctrl is the command held during the step: the first lunge target follows the stand pose
+    np.testing.assert_allclose(traj.ctrl[0], lunge_schedule()[0])
+
+
+def test_plant_observed_masks_are_independent(traj):
+    masks = list(traj.observed.values())
+    assert not any(np.shares_memory(a, b) for i, a in enumerate(masks) for b in masks[i + 1:])
