@@ -39,6 +39,44 @@ def log_options(f):
     return f
 
 
+def identify_options(f):
+    """Options of the CMA-ES identification, shared by ``identify`` and ``probe``."""
+    opts = [
+        click.option("--params", default=None, metavar="NAMES",
+                     help=f"Free parameters, comma-separated, from: {', '.join(PARAMETERS)}. "
+                          "Default: box_mass,box_inertia,box_friction."),
+        click.option("--prior", type=click.Path(), default=None,
+                     help="Belief YAML to start from (its values and stds)."),
+        click.option("--clips", "n_clips", default=24, show_default=True, type=click.IntRange(1, 10000),
+                     help="Number of clips N_c."),
+        click.option("--horizon", default="0.1,0.2", show_default=True, metavar="MIN,MAX",
+                     help="Clip horizon range [s], drawn uniformly."),
+        click.option("--popsize", default=12, show_default=True, type=click.IntRange(2, 10000),
+                     help="CMA-ES candidates per generation (B)."),
+        click.option("--generations", default=40, show_default=True, type=click.IntRange(1, 100000),
+                     help="CMA-ES generation limit (it stops earlier once converged)."),
+        click.option("--prior-weight", default=1.0, show_default=True, type=click.FloatRange(0),
+                     help="Scale of the prior term W_p (0 disables it)."),
+        click.option("--seed", default=0, show_default=True, type=int, help="Seed for clips, CMA-ES and the sim."),
+        click.option("--threads", default=None, type=click.IntRange(1, 1024),
+                     help="Rollout threads (default: all CPUs)."),
+    ]
+    for opt in reversed(opts):
+        f = opt(f)
+    return f
+
+
+def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed,
+                  t_range=None) -> IdentifySettings:
+    """:class:`IdentifySettings` from the shared options (validated)."""
+    hr = _parse_range(horizon, "--horizon")
+    if hr[0] <= 0:
+        raise AmheError(f"--horizon {horizon}: expected positive seconds")
+    tr = _parse_range(t_range, "--t-range") if t_range else None
+    return IdentifySettings(params=parse_names(params), n_clips=n_clips, horizon=hr, popsize=popsize,
+                            max_gen=generations, prior_weight=prior_weight, seed=seed, t_range=tr)
+
+
 def _out_path(out: str | None, log: str, suffix: str, force: bool) -> Path:
     path = Path(out) if out else Path.cwd() / (Path(log).name.split(".")[0] + suffix)
     if path.exists() and not force:
@@ -136,23 +174,8 @@ def cli():
 @cli.command("identify")
 @click.argument("log", required=False, type=click.Path())
 @log_options
-@click.option("--params", default=None, metavar="NAMES",
-              help=f"Free parameters, comma-separated, from: {', '.join(PARAMETERS)}. "
-                   "Default: box_mass,box_inertia,box_friction.")
-@click.option("--prior", type=click.Path(), default=None, help="Belief YAML to start from (its values and stds).")
-@click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000),
-              help="Number of clips N_c.")
-@click.option("--horizon", default="0.1,0.2", show_default=True, metavar="MIN,MAX",
-              help="Clip horizon range [s], drawn uniformly.")
-@click.option("--popsize", default=16, show_default=True, type=click.IntRange(2, 10000),
-              help="CMA-ES candidates per generation (B).")
-@click.option("--generations", default=50, show_default=True, type=click.IntRange(1, 100000),
-              help="CMA-ES generation limit.")
-@click.option("--prior-weight", default=1.0, show_default=True, type=click.FloatRange(0),
-              help="Scale of the prior term W_p (0 disables it).")
+@identify_options
 @click.option("--t-range", default=None, metavar="T0,T1", help="Use only this part of the log [s].")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed for clip selection and CMA-ES.")
-@click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Rollout threads (default: all CPUs).")
 @click.option("--out", default=None, type=click.Path(), help="Belief YAML to write (default: <log stem>.belief.yaml).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --out file.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the results and nothing else.")
@@ -172,17 +195,11 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         log = str(logs[0])
         if not as_json:
             click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
-    free = parse_names(params)
-    hr = _parse_range(horizon, "--horizon")
-    if hr[0] <= 0:
-        raise AmheError(f"--horizon {horizon}: expected positive seconds")
-    tr = _parse_range(t_range, "--t-range") if t_range else None
+    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range)
     out_path = _out_path(out, log, ".belief.yaml", force)
     plot_path = check_plot_path(plot)
-    problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
+    problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
                            box_size=parse_box_size(box_size), smooth=smooth)
-    settings = IdentifySettings(params=free, n_clips=n_clips, horizon=hr, popsize=popsize, max_gen=generations,
-                                prior_weight=prior_weight, seed=seed, t_range=tr)
     result = run_identify(problem, settings, quiet or as_json, threads)
     belief = belief_from_result(result, problem, "identify", log)
     belief.save(out_path, force=force)
@@ -253,21 +270,16 @@ def parse_truth(pairs: tuple[str, ...]) -> dict:
               help="True parameter of the sim plant (repeatable), e.g. --truth box_mass=5 --truth box_friction=0.45.")
 @click.option("--record", type=click.Path(), default=None,
               help="MCAP to record the sim probe into (default: probe_sim.mcap).")
+@click.option("--record-only", is_flag=True, help="Record the sim probe and stop (no identification).")
 @log_options
-@click.option("--params", default=None, metavar="NAMES", help="Free parameters (default: mass, inertia, friction).")
-@click.option("--prior", type=click.Path(), default=None, help="Belief YAML to assess / start from.")
-@click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000))
-@click.option("--generations", default=50, show_default=True, type=click.IntRange(1, 100000),
-              help="CMA-ES generations when identifying from the sim probe.")
-@click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--threads", default=None, type=click.IntRange(1, 1024))
+@identify_options
 @click.option("--out", default=None, type=click.Path(), help="Belief YAML (sim target; default probe_sim.belief.yaml).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object and nothing else.")
 @click.option("--plot", type=click.Path(), default=None, help="PNG of the identification (sim target).")
 @click.option("--quiet", "-q", is_flag=True)
-def probe_cmd(log, target, truth_pairs, record, topics, map_file, box_size, smooth, params, prior, n_clips,
-              generations, seed, threads, out, force, as_json, plot, quiet):
+def probe_cmd(log, target, truth_pairs, record, record_only, topics, map_file, box_size, smooth, params, prior,
+              n_clips, horizon, popsize, generations, prior_weight, seed, threads, out, force, as_json, plot, quiet):
     """Probe for a first belief (--target sim), or report what LOG can tell.
 
     \b
@@ -278,21 +290,25 @@ def probe_cmd(log, target, truth_pairs, record, topics, map_file, box_size, smoo
     """
     from .io.reader import inspect_log
     from .probe import TRUTH_RECORD, assess, simulate_probe
-    free = parse_names(params)
+    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed)
+    free = settings.params
     if target is None:
         if log is None:
             raise AmheError("probe needs a LOG to assess, or --target sim to run the probing manoeuvre")
         info = inspect_log(log, topics=parse_topics(topics, map_file) or None)
         problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
                                box_size=parse_box_size(box_size), smooth=smooth)
-        curv = assess(problem.traj, problem.scene, problem.space, n_clips=n_clips, seed=seed, nthread=threads)
+        curv = assess(problem.traj, problem.scene, problem.space, n_clips=n_clips, horizon=settings.horizon,
+                      seed=seed, nthread=threads)
         sp = problem.space
         report = {"log": info.to_dict(), "parameters": {}, "labels": sp.labels,
                   "correlation": curv.corr.tolist(), "fisher": curv.fisher.tolist(), "cost_at_prior": curv.cost}
+        prior_val, prior_sd = sp.physical(sp.mean0, sp.std0)
+        _, post_sd = sp.physical(sp.mean0, curv.std)
         for i, label in enumerate(sp.labels):
-            report["parameters"][label] = {"prior": float(sp.mean0[i]), "prior_std": float(sp.std0[i]),
-                                           "std": float(curv.std[i]),
-                                           "information_gain": float(sp.std0[i] / max(curv.std[i], 1e-12))}
+            report["parameters"][label] = {"prior": float(prior_val[i]), "prior_std": float(prior_sd[i]),
+                                           "std": float(post_sd[i]),
+                                           "information_gain": float(prior_sd[i] / max(post_sd[i], 1e-12))}
         if as_json:
             click.echo(json.dumps(report, default=str))
             return
@@ -311,7 +327,7 @@ def probe_cmd(log, target, truth_pairs, record, topics, map_file, box_size, smoo
     truth = {"box_mass": 5.0, "box_friction": 0.45}
     truth.update(parse_truth(truth_pairs))
     record_path = _out_path(record or "probe_sim.mcap", "probe_sim", "", force)
-    out_path = _out_path(out or "probe_sim.belief.yaml", "probe_sim", "", force)
+    out_path = None if record_only else _out_path(out or "probe_sim.belief.yaml", "probe_sim", "", force)
     from .plot import check_plot_path, plot_identify
     plot_path = check_plot_path(plot)
     from .io.writer import write_mcap
@@ -323,8 +339,11 @@ def probe_cmd(log, target, truth_pairs, record, topics, map_file, box_size, smoo
     })
     if not as_json:
         click.echo(f"recorded the sim probe ({traj.duration:.1f} s) to {record_path}", err=True)
+    if record_only:
+        if as_json:
+            click.echo(json.dumps({"log": str(record_path), "truth": truth_all, "duration_s": traj.duration}))
+        return
     problem = load_problem(str(record_path), params=free, prior=prior, box_size=parse_box_size(box_size))
-    settings = IdentifySettings(params=free, n_clips=n_clips, max_gen=generations, seed=seed)
     result = run_identify(problem, settings, quiet or as_json, threads)
     belief = belief_from_result(result, problem, "probe --target sim", str(record_path))
     belief.provenance["truth"] = truth_all

@@ -2,9 +2,12 @@
 
 ``N_c`` clips with horizons drawn uniformly from a range are cut from the log
 (:func:`~amhe_cli.clips.sample_clips`); CMA-ES (the ``cma`` package, ask/tell)
-minimises the shared cost ``J`` (eq. 1) over the free parameters; the belief's
-covariance comes from the cost's curvature at the estimate
-(:mod:`~amhe_cli.uncertainty`).
+minimises the shared cost ``J`` (eq. 1) over the free parameters. Beyond SPI:
+the estimate is the minimum of a quadratic fitted to the late generations
+(:mod:`~amhe_cli.surrogate`: robust to the rough floor that rocking contacts
+give the cost), and the belief's covariance is the larger of the local Fisher
+information (:mod:`~amhe_cli.uncertainty`) and a bootstrap over clips of that
+fit.
 
 CMA-ES searches in prior-σ units, ``z = (p - p0) / σ_prior``, so a kilogram and a
 friction coefficient are steps of comparable meaning.
@@ -24,7 +27,8 @@ from .cost import RolloutCost, StateWeights
 from .params import DEFAULT_FREE, ParameterSpace
 from .scene import Scene
 from .trajectory import Trajectory
-from .uncertainty import Curvature, curvature
+from .surrogate import bootstrap_minima, fit_valley
+from .uncertainty import Curvature, curvature, with_covariance
 
 
 @dataclass
@@ -39,6 +43,9 @@ class IdentifySettings:
         popsize: CMA-ES population (candidates per generation, ``B``).
         max_gen: generation limit.
         sigma0: initial CMA-ES step in prior-σ units.
+        tolx: stop when every coordinate's CMA-ES step is below this, in
+            prior-σ units (3e-3: 9 g of mass, 0.0015 of friction at the
+            default prior σ's — below what the logs resolve).
         prior_weight: scales ``W_p`` (0: no prior term).
         seed: seeds clip selection and CMA-ES.
         t_range: (t0, t1) [s] part of the log to use, or None for all of it.
@@ -46,11 +53,12 @@ class IdentifySettings:
     """
 
     params: tuple = DEFAULT_FREE
-    n_clips: int = 32
+    n_clips: int = 24
     horizon: tuple = (0.1, 0.2)
-    popsize: int = 16
-    max_gen: int = 60
+    popsize: int = 12
+    max_gen: int = 40
     sigma0: float = 0.3
+    tolx: float = 3e-3
     prior_weight: float = 1.0
     seed: int = 0
     t_range: tuple | None = None
@@ -90,9 +98,10 @@ class IdentifyResult:
     def summary(self) -> dict:
         """JSON-ready ``{"estimate", "std", "prior", ...}`` (vectors as lists)."""
         sp = self.space
+        _, phys_std = sp.physical(self.estimate, self.curvature.std)
         std = {}
         for name, sl in sp.slices().items():
-            s = self.curvature.std[sl]
+            s = phys_std[sl]
             std[name] = float(s[0]) if s.size == 1 else [float(x) for x in s]
         return {
             "estimate": sp.free_values(self.estimate),
@@ -133,19 +142,26 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         opts = {
             "popsize": settings.popsize, "seed": settings.seed + 1, "verbose": -9,
             "bounds": [list((space.lower - p0) / s0), list((space.upper - p0) / s0)],
-            "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": 1e-5, "tolflatfitness": 5,
+            "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": settings.tolx, "tolflatfitness": 5,
         }
         es = cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0, opts)
         history = []
         evals = 0
         best_p, best_j = p0.copy(), float(cost(p0[None])[0])
         cost_prior = best_j
+        samples_z, samples_j, samples_clip, samples_gen = [], [], [], []
         while not es.stop():
             Z = np.array(es.ask())
             P = p0 + Z * s0
-            J = cost(P)
+            br = cost.evaluate(P)
+            J = br.total
             evals += len(P)
             es.tell(list(Z), list(J))
+            ok = ~br.diverged.any(axis=1) & (br.penalty == 0)
+            samples_z.append(Z[ok])
+            samples_j.append(J[ok])
+            samples_clip.append(br.per_clip[ok])
+            samples_gen += [len(history)] * int(ok.sum())
             i = int(np.argmin(J))
             if J[i] < best_j:
                 best_j, best_p = float(J[i]), P[i].copy()
@@ -153,14 +169,25 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
                             "sigma": float(es.sigma), "mean": (p0 + np.asarray(es.mean) * s0).tolist()})
             if progress:
                 progress(len(history), best_j)
-        # the CMA mean jitters around the optimum; keep whichever of mean and best-ever scores lower
-        mean_p = space.project(p0 + np.asarray(es.mean) * s0)[0][0]
-        j_mean = float(cost(mean_p[None])[0])
+        # The cost is a broad valley with a rough floor (rocking contacts): read the valley with a
+        # quadratic over the late generations rather than trusting one lucky sample.
+        z_mean = np.asarray(es.mean, dtype=float)
+        late = np.asarray(samples_gen) >= len(history) // 2
+        Zs = np.concatenate(samples_z)[late]
+        Js = np.concatenate(samples_j)[late]
+        Ks = np.concatenate(samples_clip)[late]
+        valley = fit_valley(Zs, Js, z_mean)
+        z_est = valley.z_min if valley is not None and valley.convex else z_mean
+        estimate = space.project(p0 + z_est * s0)[0][0]
+        br = cost.evaluate(estimate[None])
+        j_est, data = float(br.total[0]), float(br.data[0])
         evals += 1
-        estimate, j_est = (mean_p, j_mean) if j_mean <= best_j else (best_p, best_j)
-        estimate = space.project(estimate)[0][0]
         curv = curvature(cost, estimate)
-        data = float(cost.evaluate(estimate[None]).data[0])
+        if valley is not None and valley.convex:
+            minima = bootstrap_minima(Zs, Ks, valley, settings.prior_weight, rng=np.random.default_rng(settings.seed))
+            boot_cov = np.cov((minima * s0).T).reshape(space.dim, space.dim)
+            if np.trace(boot_cov / np.outer(s0, s0)) > np.trace(curv.cov / np.outer(s0, s0)):
+                curv = with_covariance(curv, boot_cov)
     return IdentifyResult(
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,

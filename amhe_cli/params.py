@@ -6,6 +6,14 @@ physics: each free parameter has a unit, a prior mean, a prior standard deviatio
 (``W_p = diag(1/σ²)``, paper eq. 4), bounds, and a writer. Parameters that are
 not free stay at their prior.
 
+Coordinates: every parameter is its physical value in the flat vector, except
+``box_inertia``, which is the **shape ratio** ``r`` (3,) of the principal
+moments to the prior's moments scaled to the current mass,
+``I = r ⊙ I_prior · m / m_prior`` (prior mean 1, prior σ 0.3). Inertia then
+follows mass unless the data say otherwise; with raw moments, CMA-ES had to
+learn the mass–inertia coupling and traded one against the other (measured on
+the example logs: inertia +67 %, mass +6 %). Outputs are always moments.
+
 Physical consistency: principal moments of inertia must satisfy the triangle
 inequalities (``I_x ≤ I_y + I_z`` and permutations, i.e. non-negative second
 moments of mass). :meth:`ParameterSpace.project` maps any candidate onto the
@@ -63,6 +71,10 @@ PARAMETERS: dict[str, Parameter] = {
 
 DEFAULT_FREE = ("box_mass", "box_inertia", "box_friction")
 
+#: Bounds and prior σ of the inertia shape ratio ``r`` (see module docstring).
+INERTIA_RATIO_BOUNDS = (0.2, 5.0)
+INERTIA_RATIO_STD = 0.3
+
 
 def parse_names(text: str | None) -> tuple[str, ...]:
     """Parse ``"box_mass,box_friction"`` into names; ``None`` gives the default set.
@@ -94,7 +106,8 @@ class ParameterSpace:
     Attributes:
         dim: number of free scalars ``d``.
         labels: (d,) flat labels, ``box_inertia_0`` etc. for vectors.
-        mean0: (d,) prior mean ``p0``; ``std0``: (d,) prior std; ``lower``, ``upper``: (d,) bounds.
+        mean0: (d,) prior mean ``p0``; ``std0``: (d,) prior std; ``lower``, ``upper``: (d,) bounds
+            (all in the flat coordinates: inertia as shape ratios).
 
     If ``box_inertia`` is not free it follows the mass: the prior moments are
     scaled by ``mass / prior mass`` (uniform density, same shape), which keeps a
@@ -134,10 +147,20 @@ class ParameterSpace:
             p = PARAMETERS[name]
             s = len(mean0)
             self._slices[name] = slice(s, s + p.size)
-            mean0 += list(self.prior_values[name])
-            std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, p.prior_std), dtype=float), (p.size,)))
-            lo += list(p.lower)
-            hi += list(p.upper)
+            if name == "box_inertia":  # shape ratio coordinates
+                mean0 += [1.0] * 3
+                if name in prior_std:
+                    std0 += list(np.broadcast_to(np.asarray(prior_std[name], dtype=float), (3,))
+                                 / self.prior_values[name])
+                else:
+                    std0 += [INERTIA_RATIO_STD] * 3
+                lo += [INERTIA_RATIO_BOUNDS[0]] * 3
+                hi += [INERTIA_RATIO_BOUNDS[1]] * 3
+            else:
+                mean0 += list(self.prior_values[name])
+                std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, p.prior_std), dtype=float), (p.size,)))
+                lo += list(p.lower)
+                hi += list(p.upper)
             self.labels += [name] if p.size == 1 else [f"{name}_{i}" for i in range(p.size)]
         self.mean0 = np.array(mean0)
         self.std0 = np.array(std0)
@@ -150,16 +173,38 @@ class ParameterSpace:
         self.mean0 = np.clip(self.mean0, self.lower, self.upper)
 
     # -- conversions --------------------------------------------------------
+    def _inertia_base(self, mass: np.ndarray | float) -> np.ndarray:
+        """(…, 3) prior moments scaled to ``mass`` (…,) [kg·m²]."""
+        m = np.asarray(mass, dtype=float)[..., None]
+        return self.prior_values["box_inertia"] * m / self.prior_values["box_mass"][0]
+
     def values(self, vec: np.ndarray) -> dict[str, float | np.ndarray]:
-        """All parameters (free from ``vec`` (d,), the rest at the prior) as name -> value."""
+        """All parameters (free from ``vec`` (d,), the rest at the prior) as name -> physical value."""
         vec = np.asarray(vec, dtype=float)
         out = {n: v.copy() for n, v in self.prior_values.items()}
         for name, sl in self._slices.items():
             out[name] = vec[sl].copy()
-        if "box_inertia" not in self._slices:
-            out["box_inertia"] = self.prior_values["box_inertia"] * (
-                out["box_mass"][0] / self.prior_values["box_mass"][0])
+        ratio = out["box_inertia"] if "box_inertia" in self._slices else np.ones(3)
+        out["box_inertia"] = ratio * self._inertia_base(out["box_mass"][0])
         return {n: (float(v[0]) if v.size == 1 else v) for n, v in out.items()}
+
+    def physical(self, vec: np.ndarray, std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Flat (d,) values and stds in physical units (inertia ratios -> moments [kg·m²]).
+
+        The inertia std is the ratio std times the mass-scaled prior moments
+        (the mass's own uncertainty is not propagated into it).
+        """
+        vec = np.asarray(vec, dtype=float)
+        val = vec.copy()
+        sd = None if std is None else np.asarray(std, dtype=float).copy()
+        if "box_inertia" in self._slices:
+            sl = self._slices["box_inertia"]
+            mass = self.values(vec)["box_mass"]
+            base = self._inertia_base(mass)
+            val[sl] = vec[sl] * base
+            if sd is not None:
+                sd[sl] = sd[sl] * base
+        return val, sd
 
     def free_values(self, vec: np.ndarray) -> dict[str, float | list[float]]:
         """Free parameters of ``vec`` (d,) as name -> float or list (for YAML/JSON)."""
@@ -167,11 +212,14 @@ class ParameterSpace:
         return {n: (vals[n] if np.isscalar(vals[n]) else [float(x) for x in vals[n]]) for n in self.free}
 
     def vector(self, values: dict) -> np.ndarray:
-        """(d,) vector of the free parameters from name -> value (missing: prior)."""
+        """(d,) vector of the free parameters from name -> physical value (missing: prior)."""
         vec = self.mean0.copy()
         for name, sl in self._slices.items():
             if name in values:
                 vec[sl] = np.atleast_1d(np.asarray(values[name], dtype=float))
+        if "box_inertia" in self._slices and "box_inertia" in values:
+            mass = float(values.get("box_mass", self.prior_values["box_mass"][0]))
+            vec[self._slices["box_inertia"]] /= self._inertia_base(mass)
         return vec
 
     def slices(self) -> dict[str, slice]:
@@ -192,7 +240,10 @@ class ParameterSpace:
         Q = np.clip(P, self.lower, self.upper)
         if "box_inertia" in self._slices:
             sl = self._slices["box_inertia"]
-            inertia = Q[:, sl]
+            mass = Q[:, self._slices["box_mass"]][:, 0] if "box_mass" in self._slices else \
+                np.full(len(Q), self.prior_values["box_mass"][0])
+            base = self._inertia_base(mass)
+            inertia = Q[:, sl] * base
             for _ in range(3):  # raise the two smaller moments until I_max <= sum of the others
                 order = np.argsort(inertia, axis=1)
                 big = np.take_along_axis(inertia, order[:, 2:], axis=1)[:, 0]
@@ -203,7 +254,7 @@ class ParameterSpace:
                 np.put_along_axis(adj, order[:, 2:], -short[:, None] / 3, axis=1)
                 np.put_along_axis(adj, order[:, :2], np.repeat(short[:, None] / 3, 2, axis=1), axis=1)
                 inertia = inertia + adj
-            Q[:, sl] = np.clip(inertia, self.lower[sl], self.upper[sl])
+            Q[:, sl] = np.clip(inertia / base, self.lower[sl], self.upper[sl])
         moved = (((Q - P) / self.std0) ** 2).sum(axis=1)
         return Q, moved
 

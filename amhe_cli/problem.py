@@ -22,9 +22,19 @@ from .trajectory import Trajectory
 
 
 def example_logs() -> list[Path]:
-    """The example logs shipped inside the package, sorted by name."""
-    root = resources.files("amhe_cli") / "examples"
-    return sorted(Path(str(p)) for p in root.iterdir() if str(p).endswith(".mcap")) if root.is_dir() else []
+    """The example logs shipped inside the package, sorted by name.
+
+    Installed, they are the package data ``amhe_cli/examples``; in a source
+    checkout, the repository's ``examples/logs``.
+    """
+    roots = [Path(str(resources.files("amhe_cli"))) / "examples",
+             Path(__file__).resolve().parent.parent / "examples" / "logs"]
+    for root in roots:
+        if root.is_dir():
+            found = sorted(p for p in root.iterdir() if p.suffix == ".mcap")
+            if found:
+                return found
+    return []
 
 
 def parse_topics(pairs: tuple[str, ...], map_file: str | None) -> dict[str, str]:

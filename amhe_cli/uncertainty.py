@@ -108,3 +108,13 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     np.fill_diagonal(corr, 1.0)
     total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
     return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, s2)
+
+
+def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
+    """``curv`` with its covariance (and std, correlation) replaced by ``cov`` (d, d)."""
+    cov = 0.5 * (cov + cov.T)
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return Curvature(curv.point, curv.fisher, cov, std, np.clip(corr, -1, 1), curv.cost, curv.residual_scale)

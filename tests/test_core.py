@@ -226,31 +226,36 @@ def _triangle_ok(inertia, tol=1e-9):
 
 
 def test_project_bounds_and_inertia_triangle(scene):
-    space = ParameterSpace(scene)  # mass, inertia (3), friction
+    space = ParameterSpace(scene)  # mass, inertia shape ratios (3), friction
     assert space.labels == ["box_mass", "box_inertia_0", "box_inertia_1", "box_inertia_2", "box_friction"]
     sl = space.slices()["box_inertia"]
     rng = np.random.default_rng(1)
     P = np.column_stack([
         rng.uniform(-5, 60, 200),
-        np.exp(rng.uniform(np.log(1e-6), np.log(10), (200, 3))),
+        np.exp(rng.uniform(np.log(1e-3), np.log(20), (200, 3))),
         rng.uniform(-1, 3, 200),
     ])
-    P[0, sl] = [3.0, 1e-4, 1e-4]   # the worst violation inside the bounds
-    P[1, sl] = [50.0, 0.0, 0.0]    # out of bounds and infeasible
+    P[0, sl] = [4.9, 0.2, 0.2]   # the worst violation inside the bounds
+    P[1, sl] = [50.0, 0.0, 0.0]  # out of bounds and infeasible
     Q, moved = space.project(P)
     assert np.all(Q >= space.lower - 1e-12) and np.all(Q <= space.upper + 1e-12)
-    assert _triangle_ok(Q[:, sl])
+    moments = np.array([space.values(q)["box_inertia"] for q in Q])
+    assert _triangle_ok(moments)
+    raw = np.array([space.values(p)["box_inertia"] for p in P])
     infeasible = np.any(P < space.lower, axis=1) | np.any(P > space.upper, axis=1) | ~np.array(
-        [_triangle_ok(p[None, sl], tol=0.0) for p in P])
+        [_triangle_ok(m[None], tol=0.0) for m in raw])
     assert infeasible.sum() > 50
     assert np.all(moved[infeasible] > 0)
     # feasible candidates pass through unchanged with zero penalty
     feas = np.tile(space.mean0, (5, 1))
     feas[:, 0] = [0.5, 1, 5, 20, 39]
-    feas[:, sl] = uniform_box_inertia(2.0, (0.3, 0.5, 0.2))
+    for row in feas:
+        row[sl] = space.vector({"box_mass": row[0], "box_inertia": uniform_box_inertia(row[0], (0.3, 0.5, 0.2))})[sl]
     Qf, mf = space.project(feas)
-    np.testing.assert_array_equal(Qf, feas)
+    np.testing.assert_allclose(Qf, feas, rtol=1e-12)
     np.testing.assert_array_equal(mf, 0.0)
+    # the inertia coordinates are shape ratios: physical moments follow the mass
+    np.testing.assert_allclose(space.values(feas[2])["box_inertia"], uniform_box_inertia(5.0, (0.3, 0.5, 0.2)))
 
 
 def test_parse_names():
@@ -270,11 +275,13 @@ def test_inertia_follows_mass_when_not_free(scene, space2):
     m = copy.copy(scene.model)
     space2.write(m, np.array([2 * prior_mass, 0.5]))
     np.testing.assert_allclose(m.body_inertia[scene.box_body], 2 * prior_inertia)
-    # a free inertia does not follow
+    # a free inertia is a shape ratio to the mass-scaled prior: ratio 1 follows the mass, 1.5 is 1.5x that
     space5 = ParameterSpace(scene)
     vec = space5.mean0.copy()
     vec[0] *= 2
-    np.testing.assert_allclose(space5.values(vec)["box_inertia"], space5.prior_values["box_inertia"])
+    np.testing.assert_allclose(space5.values(vec)["box_inertia"], 2 * space5.prior_values["box_inertia"])
+    vec[space5.slices()["box_inertia"]] = 1.5
+    np.testing.assert_allclose(space5.values(vec)["box_inertia"], 3 * space5.prior_values["box_inertia"])
 
 
 # --------------------------------------------------------------------------- clips

@@ -1,0 +1,122 @@
+"""Quadratic surrogates of the cost over the candidates an optimiser evaluated.
+
+Contact-rich rollouts make ``J(p)`` rough at small scales: a box rocking on its
+corners turns a 1 % change of mass into millimetre-level differences in when it
+lands, so the cost is a broad valley with a noisy floor (and, when the model is
+exactly the plant's, a narrow spike at the truth). A single best sample or a
+finite difference at 1 % reads that noise. A quadratic fitted by least squares
+to the late CMA-ES generations reads the valley at the scale CMA-ES explored:
+
+* its minimiser is the estimate (:func:`fit_valley`);
+* per-clip quadratics, resampled over clips (bootstrap), give the spread of
+  that minimiser across plausible clip sets — the uncertainty that seed-to-seed
+  reruns show (:func:`bootstrap_minima`).
+
+All work happens in standardised coordinates ``u = (z - centre) / scale``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def features(U: np.ndarray) -> np.ndarray:
+    """(n, d) points -> (n, 1 + d + d(d+1)/2) quadratic features [1, u_i, u_i u_j (i ≤ j)]."""
+    n, d = U.shape
+    iu, ju = np.triu_indices(d)
+    return np.hstack([np.ones((n, 1)), U, U[:, iu] * U[:, ju]])
+
+
+def unpack(coef: np.ndarray, d: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """Feature coefficients (m,) -> (c, g (d,), H (d, d)) with y ≈ c + g·u + ½ uᵀ H u."""
+    c, g = coef[0], coef[1:1 + d]
+    iu, ju = np.triu_indices(d)
+    H = np.zeros((d, d))
+    H[iu, ju] = coef[1 + d:]
+    H = H + H.T  # off-diagonals: coef = H_ij; diagonal: coef = ½ H_ii, doubled here
+    return float(c), g, H
+
+
+def _psd(H: np.ndarray, floor: float) -> np.ndarray:
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    return (V * np.maximum(w, floor)) @ V.T
+
+
+def _minimise(g: np.ndarray, H: np.ndarray, bound: float) -> np.ndarray:
+    scale = max(float(np.abs(np.diag(H)).max()), 1e-12)
+    u = -np.linalg.solve(_psd(H, 1e-6 * scale), g)
+    return np.clip(u, -bound, bound)
+
+
+@dataclass
+class Valley:
+    """The fitted valley.
+
+    Attributes:
+        centre, scale: (d,) standardisation of the fit (z = centre + scale · u).
+        z_min: (d,) minimiser in optimiser coordinates.
+        hessian_u: (d, d) curvature in u.
+        r2: fraction of the cost's variance over the samples the fit explains.
+        convex: whether the fitted Hessian was positive definite.
+    """
+
+    centre: np.ndarray
+    scale: np.ndarray
+    z_min: np.ndarray
+    hessian_u: np.ndarray
+    r2: float
+    convex: bool
+
+
+def fit_valley(Z: np.ndarray, J: np.ndarray, centre: np.ndarray, bound: float = 3.0) -> Valley | None:
+    """Fit ``J ≈ quadratic(z)`` over samples ``Z`` (n, d) with costs ``J`` (n,).
+
+    Returns None when there are too few samples for a quadratic (n < 2m).
+    The minimiser is limited to ``bound`` sample standard deviations from
+    ``centre`` (a quadratic is not trusted beyond the cloud it was fitted on).
+    """
+    n, d = Z.shape
+    m = 1 + d + d * (d + 1) // 2
+    if n < 2 * m:
+        return None
+    scale = np.maximum(Z.std(axis=0), 1e-9)
+    U = (Z - centre) / scale
+    X = features(U)
+    coef, *_ = np.linalg.lstsq(X, J, rcond=None)
+    pred = X @ coef
+    r2 = 1.0 - float(((J - pred) ** 2).sum() / max(((J - J.mean()) ** 2).sum(), 1e-300))
+    _, g, H = unpack(coef, d)
+    convex = bool(np.linalg.eigvalsh(0.5 * (H + H.T)).min() > 0)
+    u = _minimise(g, H, bound)
+    return Valley(centre, scale, centre + scale * u, H, r2, convex)
+
+
+def bootstrap_minima(Z: np.ndarray, per_clip: np.ndarray, valley: Valley, prior_weight: float,
+                     n_boot: int = 200, rng: np.random.Generator | None = None, bound: float = 3.0) -> np.ndarray:
+    """Minimisers of the summed per-clip quadratics over clip sets resampled with replacement.
+
+    Args:
+        Z: (n, d) evaluated points (optimiser coordinates: prior mean at 0, prior σ = 1).
+        per_clip: (n, K) each clip's cost at each point.
+        valley: the fit whose standardisation to reuse.
+        prior_weight: the prior term is ``prior_weight · |z|²``, added exactly.
+        n_boot: resamples.
+    Returns:
+        (n_boot, d) minimisers in optimiser coordinates.
+    """
+    rng = rng or np.random.default_rng(0)
+    n, d = Z.shape
+    U = (Z - valley.centre) / valley.scale
+    coefs, *_ = np.linalg.lstsq(features(U), per_clip, rcond=None)  # (m, K)
+    K = per_clip.shape[1]
+    # prior |z|² with z = c + s u: gradient 2 s c, Hessian 2 diag(s²)
+    g_prior = prior_weight * 2.0 * valley.scale * valley.centre
+    H_prior = prior_weight * 2.0 * np.diag(valley.scale ** 2)
+    out = np.empty((n_boot, d))
+    for b in range(n_boot):
+        counts = np.bincount(rng.integers(0, K, size=K), minlength=K)
+        _, g, H = unpack(coefs @ counts, d)
+        out[b] = valley.centre + valley.scale * _minimise(g + g_prior, H + H_prior, bound)
+    return out
