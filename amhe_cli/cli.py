@@ -47,7 +47,7 @@ def identify_options(f):
                           "Default: box_mass,box_inertia,box_friction."),
         click.option("--prior", type=click.Path(), default=None,
                      help="Belief YAML to start from (its values and stds)."),
-        click.option("--clips", "n_clips", default=24, show_default=True, type=click.IntRange(1, 10000),
+        click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000),
                      help="Number of clips N_c."),
         click.option("--horizon", default="0.1,0.2", show_default=True, metavar="MIN,MAX",
                      help="Clip horizon range [s], drawn uniformly."),
@@ -158,6 +158,20 @@ def run_identify(problem: Problem, settings: IdentifySettings, quiet: bool, thre
         bar.close()
 
 
+def save_outputs(problem: Problem, result: IdentifyResult, command: str, log: str, out_path: Path, force: bool,
+                 plot_path: Path | None, threads: int | None, truth: dict | None = None) -> None:
+    """Write the belief YAML (and the --plot PNG) of an identification."""
+    belief = belief_from_result(result, problem, command, log)
+    if truth is not None:
+        belief.provenance["truth"] = truth
+    belief.save(out_path, force=force)
+    if plot_path is not None:
+        from .cost import RolloutCost
+        from .plot import plot_identify
+        with RolloutCost(problem.scene, problem.space, result.clips, nthread=threads) as cost:
+            plot_identify(plot_path, result, cost.rollout, problem.traj)
+
+
 # -- the command group ---------------------------------------------------------
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -187,7 +201,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
 
     With no LOG, runs on the bundled example log.
     """
-    from .plot import check_plot_path, plot_identify
+    from .plot import check_plot_path
     if log is None:
         logs = example_logs()
         if not logs:
@@ -201,13 +215,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
     problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
                            box_size=parse_box_size(box_size), smooth=smooth)
     result = run_identify(problem, settings, quiet or as_json, threads)
-    belief = belief_from_result(result, problem, "identify", log)
-    belief.save(out_path, force=force)
-    if plot_path is not None:
-        from .clips import Clips  # noqa: F401  (documented type of result.clips)
-        from .cost import RolloutCost
-        with RolloutCost(problem.scene, problem.space, result.clips, nthread=threads) as cost:
-            plot_identify(plot_path, result, cost.rollout)
+    save_outputs(problem, result, "identify", log, out_path, force, plot_path, threads)
     if as_json:
         s = result.summary()
         s["belief"] = str(out_path)
@@ -328,7 +336,7 @@ def probe_cmd(log, target, truth_pairs, record, record_only, topics, map_file, b
     truth.update(parse_truth(truth_pairs))
     record_path = _out_path(record or "probe_sim.mcap", "probe_sim", "", force)
     out_path = None if record_only else _out_path(out or "probe_sim.belief.yaml", "probe_sim", "", force)
-    from .plot import check_plot_path, plot_identify
+    from .plot import check_plot_path
     plot_path = check_plot_path(plot)
     from .io.writer import write_mcap
     traj = simulate_probe(truth, seed=seed)
@@ -345,13 +353,8 @@ def probe_cmd(log, target, truth_pairs, record, record_only, topics, map_file, b
         return
     problem = load_problem(str(record_path), params=free, prior=prior, box_size=parse_box_size(box_size))
     result = run_identify(problem, settings, quiet or as_json, threads)
-    belief = belief_from_result(result, problem, "probe --target sim", str(record_path))
-    belief.provenance["truth"] = truth_all
-    belief.save(out_path, force=force)
-    if plot_path is not None:
-        from .cost import RolloutCost
-        with RolloutCost(problem.scene, problem.space, result.clips, nthread=threads) as cost:
-            plot_identify(plot_path, result, cost.rollout)
+    save_outputs(problem, result, "probe --target sim", str(record_path), out_path, force, plot_path, threads,
+                 truth=truth_all)
     if as_json:
         s = result.summary()
         s.update(belief=str(out_path), log=str(record_path), truth={k: truth_all[k] for k in problem.space.free})

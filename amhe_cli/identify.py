@@ -37,7 +37,8 @@ class IdentifySettings:
 
     Attributes:
         params: free parameter names.
-        n_clips: number of clips ``N_c``.
+        n_clips: number of clips ``N_c``. 32: on the 5 kg example log, 8 seeds all
+            landed within 3 % of the mass; with 24 one seed missed by 10.6 %.
         horizon: (min, max) clip horizon [s], drawn uniformly. 0.1–0.2 s: longer
             clips let the optimum slide along the m·μ valley (DESIGN.md §4b).
         popsize: CMA-ES population (candidates per generation, ``B``).
@@ -53,7 +54,7 @@ class IdentifySettings:
     """
 
     params: tuple = DEFAULT_FREE
-    n_clips: int = 24
+    n_clips: int = 32
     horizon: tuple = (0.1, 0.2)
     popsize: int = 12
     max_gen: int = 40

@@ -31,7 +31,7 @@ def check_plot_path(path) -> Path | None:
     return None if path is None else _check_png(path)
 
 
-def plot_identify(path, result, cost_rollout) -> Path:
+def plot_identify(path, result, cost_rollout, traj=None) -> Path:
     """Cost over generations and recorded vs predicted box motion of an identification.
 
     Args:
@@ -40,6 +40,7 @@ def plot_identify(path, result, cost_rollout) -> Path:
         cost_rollout: callable (B, d) -> (qpos (B, N_c, H, nq), qvel) over the
             result's clips, i.e. ``RolloutCost.rollout``; called once with the
             prior and the estimate.
+        traj: the recorded trajectory, for the whole box path (optional).
     """
     path = _check_png(path)
     sp, clips = result.space, result.clips
@@ -66,22 +67,34 @@ def plot_identify(path, result, cost_rollout) -> Path:
     ax.legend(fontsize=7)
 
     qpos, _ = cost_rollout(np.vstack([sp.mean0, result.estimate]))
-    t_rec = clips.start[:, None] + 1 + np.arange(clips.qpos.shape[1])[None, :]
     bx = scene.box_qpos
-    for col, (axis, name) in enumerate(((0, "x"), (1, "y"))):
-        ax = fig.add_subplot(grid[col, 1:])
-        for k in range(len(clips)):
-            h = clips.horizon[k]
-            tt = t_rec[k, :h] * clips.dt
-            ax.plot(tt, clips.qpos[k, :h, bx[axis]], color="k", lw=2.5, label="recorded" if k == 0 else None)
-            ax.plot(tt, qpos[0, k, :h, bx[axis]], color="tab:red", lw=1, ls="--",
-                    label="predicted, prior" if k == 0 else None)
-            ax.plot(tt, qpos[1, k, :h, bx[axis]], color="tab:blue", lw=1.2,
-                    label="predicted, estimate" if k == 0 else None)
-        ax.set_xlabel("t [s]")
-        ax.set_ylabel(f"box {name} [m]")
-        ax.set_title(f"box {name} over the {len(clips)} clips")
-        ax.legend(fontsize=8)
+    # the recorded box path with each clip's prediction under the estimate laid on it
+    ax = fig.add_subplot(grid[0, 1:])
+    if traj is not None:
+        ax.plot(traj.box_pos[:, 0], traj.box_pos[:, 1], color="0.6", lw=1, label="recorded box path")
+    for k in range(len(clips)):
+        h = clips.horizon[k]
+        ax.plot(clips.qpos[k, :h, bx[0]], clips.qpos[k, :h, bx[1]], color="k", lw=3,
+                label="recorded, clips" if k == 0 else None)
+        ax.plot(qpos[1, k, :h, bx[0]], qpos[1, k, :h, bx[1]], color="tab:blue", lw=1.2,
+                label="predicted, estimate" if k == 0 else None)
+    ax.set_xlabel("box x [m]")
+    ax.set_ylabel("box y [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title("box path and the clips")
+    ax.legend(fontsize=8)
+    # planar prediction error of every clip over its horizon, at the prior and at the estimate
+    ax = fig.add_subplot(grid[1, 1:])
+    for k in range(len(clips)):
+        h = clips.horizon[k]
+        tt = (np.arange(h) + 1) * clips.dt
+        for row, color, label in ((0, "tab:red", "prior"), (1, "tab:blue", "estimate")):
+            err = np.linalg.norm(qpos[row, k, :h][:, bx[:2]] - clips.qpos[k, :h][:, bx[:2]], axis=1)
+            ax.plot(tt, 1e3 * err, color=color, lw=1, alpha=0.7, label=label if k == 0 else None)
+    ax.set_xlabel("time into clip [s]")
+    ax.set_ylabel("box planar error [mm]")
+    ax.set_title("prediction error per clip")
+    ax.legend(fontsize=8)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

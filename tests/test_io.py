@@ -40,7 +40,8 @@ from amhe_cli.io.reader import (
 from amhe_cli.io.writer import McapLog, write_mcap
 from amhe_cli.trajectory import GO1_JOINTS, SIGNALS, Trajectory
 
-CONST_A = Path("/work/shared/logs/const_a.mcap")
+# shared/ lies beside the checkout (DESIGN.md), in CI as in development
+CONST_A = Path(__file__).resolve().parents[2] / "shared" / "logs" / "const_a.mcap"
 STAND = np.tile([0.0, 0.9, -1.8], 4)
 ANYMAL = {"FR": "RF", "FL": "LF", "RR": "RH", "RL": "LH"}
 ANYMAL_PART = {"hip": "HAA", "thigh": "HFE", "calf": "KFE"}
