@@ -34,8 +34,8 @@ def log_options(f):
                      help="YAML file of role: topic.")(f)
     f = click.option("--box-size", default=None, metavar="EDGE|X,Y,Z",
                      help="Box edge length(s) [m]; default 0.38 m cube.")(f)
-    f = click.option("--smooth", default=0, show_default=True, type=click.IntRange(0, 200),
-                     help="Moving-average samples for velocities differentiated from poses (noisy mocap).")(f)
+    f = click.option("--smooth", default="auto", show_default=True, metavar="auto|0|N",
+                     help="Pose smoothing: auto (only where noise shows), 0 (off) or an N-sample window.")(f)
     return f
 
 
@@ -210,6 +210,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         if not as_json:
             click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
     settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range)
+    smooth = parse_smooth(smooth)
     out_path = _out_path(out, log, ".belief.yaml", force)
     plot_path = check_plot_path(plot)
     problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
@@ -303,6 +304,7 @@ def probe_cmd(log, target, truth_pairs, record, record_only, topics, map_file, b
     if target is None:
         if log is None:
             raise AmheError("probe needs a LOG to assess, or --target sim to run the probing manoeuvre")
+        smooth = parse_smooth(smooth)
         info = inspect_log(log, topics=parse_topics(topics, map_file) or None)
         problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
                                box_size=parse_box_size(box_size), smooth=smooth)
@@ -362,6 +364,19 @@ def probe_cmd(log, target, truth_pairs, record, record_only, topics, map_file, b
         return
     print_summary(result, truth=truth_all)
     click.echo(f"belief written to {out_path}")
+
+
+def parse_smooth(text: str) -> int | str:
+    """``--smooth`` value: ``"auto"`` or a non-negative sample count."""
+    if text == "auto":
+        return text
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise AmheError(f"--smooth {text!r}: expected 'auto', 0 (off) or a window in samples")
+    return n
 
 
 def _parse_range(text: str, flag: str) -> tuple[float, float]:

@@ -98,7 +98,7 @@ class Problem:
 
 def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None, prior: str | None = None,
                  box_size: tuple | None = None, base_config: SceneConfig | None = None,
-                 smooth: int = 0) -> Problem:
+                 smooth: int | str = "auto") -> Problem:
     """Read ``log`` and build the scene and parameter space for it.
 
     Args:
@@ -108,7 +108,7 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
         prior: path of a belief YAML whose values and stds become the prior.
         box_size: box edge lengths [m] (None: the scene default, a 0.38 m cube).
         base_config: scene defaults to start from.
-        smooth: moving-average length for differentiated velocities.
+        smooth: pose smoothing, ``"auto"``, 0 or a window (see :func:`~amhe_cli.io.reader.read_log`).
 
     Raises:
         AmheError: unreadable log, missing roles, inconsistent geometry, bad belief.

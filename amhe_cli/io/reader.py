@@ -37,11 +37,13 @@ import numpy as np
 
 from ..errors import AmheError
 from ..trajectory import GO1_JOINTS, Trajectory
+from .smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
 from .quat import (
     body_to_world,
     quat_conj,
     quat_make_continuous,
     quat_mul,
+    quat_normalize,
     quat_slerp,
     quat_to_rotvec,
     ros_to_mj,
@@ -825,19 +827,6 @@ def _backward_angvel(q: np.ndarray, dt: float) -> np.ndarray:
     return w
 
 
-def _moving_average(v: np.ndarray, k: int) -> np.ndarray:
-    """Centred moving average over ``k`` samples along axis 0 (shorter at the ends)."""
-    if k <= 1:
-        return v
-    kernel = np.ones(k)
-    lo = (k - 1) // 2
-    count = np.convolve(np.ones(len(v)), kernel, mode="full")[lo : lo + len(v)]
-    out = np.empty_like(v)
-    for j in range(v.shape[1]):
-        out[:, j] = np.convolve(v[:, j], kernel, mode="full")[lo : lo + len(v)] / count
-    return out
-
-
 # --------------------------------------------------------------------------- #
 # Public API
 # --------------------------------------------------------------------------- #
@@ -849,7 +838,7 @@ def read_log(
     topics: dict[str, str] | None = None,
     dt: float = 0.002,
     joint_names_map: dict[str, str] | None = None,
-    smooth: int = 0,
+    smooth: int | str = "auto",
 ) -> Trajectory:
     """Read a log and resample it onto a uniform grid in MuJoCo conventions.
 
@@ -861,9 +850,13 @@ def read_log(
         dt: grid spacing [s], e.g. the model timestep 0.002.
         joint_names_map: log joint name -> Go1 joint name, for names that
             automatic matching does not recognise.
-        smooth: width [samples] of a centred moving average applied to the
-            velocities that are *differentiated* from poses (0 = none); logged
-            velocities are never smoothed.
+        smooth: smoothing of base and box poses: ``"auto"`` (default) fits a
+            zero-phase local quadratic (Savitzky–Golay) to a pose stream only
+            where its noise shows (:mod:`~amhe_cli.io.smoothing`), with the
+            window that brings differentiated velocity noise to ~2 cm/s; an
+            int N > 1 forces an N-sample window on every pose; 0 turns it off.
+            Logged velocities are kept as logged; velocities differentiated
+            from smoothed poses come from the fit's slope.
 
     Time: a topic's header stamps are used when any of them is nonzero,
     otherwise its log (receive) times; the grid starts where the last required
@@ -888,8 +881,8 @@ def read_log(
     dt_ns = int(round(dt * 1e9))
     if dt_ns < 1:
         raise AmheError(f"dt must be at least 1 ns, got {dt!r}")
-    if not isinstance(smooth, (int, np.integer)) or smooth < 0:
-        raise AmheError(f"smooth must be a non-negative number of samples, got {smooth!r}")
+    if smooth != "auto" and (not isinstance(smooth, (int, np.integer)) or smooth < 0):
+        raise AmheError(f"smooth must be 'auto' or a non-negative number of samples, got {smooth!r}")
 
     with _open_log(path) as log:
         roles, problems = assign_roles(log.topics, topics)
@@ -958,7 +951,23 @@ def read_log(
     return traj
 
 
-def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int, meta: dict) -> Trajectory:
+def _pose_windows(s: "_Series", dt: float, smooth: int | str) -> tuple[int, int, float, float]:
+    """Grid windows (position, orientation) and noise levels [m, rad] of one pose stream."""
+    if smooth != "auto":
+        w = int(smooth) if smooth and smooth > 1 else 1
+        return w, w, 0.0, 0.0
+    period = max(s.period_ns() * 1e-9, dt)
+    sig_p = float(noise_sigma(s.fields["pos"]).max())
+    sig_r = float(noise_sigma(2.0 * quat_make_continuous(s.fields["quat"])[:, 1:]).max())
+    # windows are chosen on the raw message rate, then expressed in grid samples
+    wp = window_for(sig_p, period)
+    wr = window_for(sig_r, period, target=0.2, clean=CLEAN_SIGMA_ROT)
+    to_grid = period / dt
+    return (int(round(wp * to_grid)) | 1 if wp > 1 else 1, int(round(wr * to_grid)) | 1 if wr > 1 else 1,
+            sig_p, sig_r)
+
+
+def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | str, meta: dict) -> Trajectory:
     """Put the required roles on one grid (see :func:`read_log`)."""
     cmd = series["joint_commands"]
     cmd_period = cmd.period_ns()
@@ -980,15 +989,12 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int, me
     observed: dict[str, np.ndarray] = {}
     measured: dict[str, bool] = {}
 
-    def diff_vel(x: np.ndarray) -> np.ndarray:
-        return _moving_average(_backward_diff(x, dt), smooth)
-
     # Joint states.
     js = series["joint_states"]
     i, u = _bracket(js.t_ns, grid)
     out["joint_pos"] = _lerp(js.fields["q"], i, u)
     measured["joint_states"] = "dq" in js.fields
-    out["joint_vel"] = _lerp(js.fields["dq"], i, u) if "dq" in js.fields else diff_vel(out["joint_pos"])
+    out["joint_vel"] = _lerp(js.fields["dq"], i, u) if "dq" in js.fields else _backward_diff(out["joint_pos"], dt)
     observed["joint_states"] = _observed_interp(js.t_ns, grid, js.period_ns())
 
     # Free bodies.
@@ -998,12 +1004,23 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int, me
         pos = _lerp(s.fields["pos"], i, u)
         quat = quat_slerp(s.fields["quat"][i], s.fields["quat"][i + 1], u)
         measured[role] = "linvel" in s.fields
+        wp, wr, sig_p, sig_r = _pose_windows(s, dt, smooth)
+        linvel = _backward_diff(pos, dt)
+        if wp > 1:
+            pos, linvel = savgol(pos, wp, dt)
+        if wr > 1:
+            quat = quat_normalize(savgol(quat_make_continuous(quat), wr, dt)[0])
+        angvel = _backward_angvel(quat, dt)
         if measured[role]:
             linvel = _lerp(s.fields["linvel"], i, u)
             angvel = _lerp(s.fields["angvel"], i, u)
-        else:
-            linvel = diff_vel(pos)
-            angvel = _moving_average(_backward_angvel(quat, dt), smooth)
+        if wp > 1 or wr > 1:
+            meta.setdefault("smoothing", {})[role] = {"position_window": wp, "orientation_window": wr,
+                                                     "position_noise_m": sig_p, "orientation_noise_rad": sig_r}
+            what = "smoothed (--smooth)" if smooth != "auto" else \
+                f"pose noise ~{sig_p * 1e3:.2g} mm / {sig_r * 1e3:.2g} mrad: smoothed"
+            msg = f"{role} {what} over {wp * dt * 1e3:.0f} ms (position) / {wr * dt * 1e3:.0f} ms (orientation)"
+            meta["warnings"].append(msg)  # issued with the others at the end of read_log
         out.update({f"{role}_pos": pos, f"{role}_quat": quat, f"{role}_linvel": linvel, f"{role}_angvel": angvel})
         observed[role] = _observed_interp(s.t_ns, grid, s.period_ns())
 
