@@ -78,7 +78,9 @@ def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, 
 
 
 def _out_path(out: str | None, log: str, suffix: str, force: bool) -> Path:
-    path = Path(out) if out else Path.cwd() / (Path(log).name.split(".")[0] + suffix)
+    name = Path(log.rstrip("/")).name
+    stem = Path(name).stem if Path(name).suffix in (".mcap", ".bag", ".db3", ".yaml") else name
+    path = Path(out) if out else Path.cwd() / (stem + suffix)
     if path.exists() and not force:
         raise AmheError(f"{path} already exists: pass --force to overwrite it, or choose another --out")
     if not path.parent.exists():
@@ -118,7 +120,7 @@ def belief_from_result(result: IdentifyResult, problem: Problem, command: str, l
 
 
 def print_summary(result: IdentifyResult, truth: dict | None = None) -> None:
-    """A small results table on stdout (rich if available, else plain)."""
+    """A small plain-text results table on stdout (prior, estimate, std, truth if known)."""
     s = result.summary()
     rows = []
     for name in result.space.free:
