@@ -98,3 +98,39 @@ def plot_identify(path, result, cost_rollout, traj=None) -> Path:
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=None) -> Path:
+    """Each estimated parameter over time with its ±1σ band and the truth where known.
+
+    Args:
+        path: PNG to write.
+        head, rows: the estimates table (``t, name, name_std, …``) of
+            :func:`~amhe_cli.replay.estimates_table`.
+        truth: a :class:`~amhe_cli.replay.TruthSeries` or None.
+        skipped: (n,) bool, updates whose window held no information (marked).
+    """
+    path = _check_png(path)
+    names = [h for h in head[1:] if not h.endswith("_std")]
+    fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.6 * len(names)), sharex=True, squeeze=False,
+                             constrained_layout=True)
+    t = rows[:, 0]
+    for ax, name in zip(axes[:, 0], names):
+        v, sd = rows[:, head.index(name)], rows[:, head.index(name + "_std")]
+        ax.fill_between(t, v - sd, v + sd, step="post", alpha=0.25, color="tab:blue", label="±1σ")
+        ax.step(t, v, where="post", color="tab:blue", label="estimate")
+        if skipped is not None and np.any(skipped):
+            ax.plot(t[skipped], v[skipped], "x", color="0.5", ms=4, label="kept (window at rest)")
+        if truth is not None:
+            base, _, idx = name.rpartition("_")
+            key, col = (base, int(idx)) if idx.isdigit() and base in truth.values else (name, None)
+            if key in truth.values:
+                tv = truth.values[key] if col is None else truth.values[key][:, col]
+                ax.step(truth.t, tv, where="post", color="k", lw=1.5, label="truth")
+        ax.set_ylabel(name)
+        ax.legend(fontsize=8, loc="best")
+    axes[-1, 0].set_xlabel("t [s]")
+    fig.suptitle("moving horizon estimates")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,243 @@
+"""Sampling-based moving horizon estimation (paper §IV-A, §IV-C, Algorithm 1 MHE-Estimate).
+
+Every ``Δt_update`` seconds the estimator takes the last ``H`` seconds of data
+(the window), and solves eq. (4)::
+
+    p̂_t = argmin_p  Σ_k || x^r_{k+1} - x_{k+1}(p) ||²_{W_x}  +  || p - p̂⁻ ||²_{W_p}
+
+with the paper's update: a diagonal Gaussian ``N(μ, diag σ²)`` starts at the
+previous estimate ``p̂⁻``; for ``L_MHE`` iterations ``B`` candidates are drawn and
+scored by the shared cost module over the window, and mean and σ move toward the
+log-rank-weighted average of the lowest-cost half with learning rate ``α``; the
+loop stops early once every σ is below ``σ_floor``. ``W_p = diag(1/σ_pull²)``
+pulls toward ``p̂⁻`` — this is what keeps a parameter steady while the window
+holds nothing that informs it (a box at rest says nothing about its mass).
+
+The window is rolled out either in one piece (``clip=None``, the paper's
+formulation) or as consecutive clips reset to the recorded states (multiple
+shooting, ``clip`` seconds each); of those clips only the ones where the box moves
+are rolled out, up to ``max_steps`` simulated steps per candidate, so an update
+has a bounded cost whatever the window length.
+
+:class:`MovingHorizonEstimator` holds no thread of its own: ``mhe-replay`` calls
+:meth:`~MovingHorizonEstimator.update` along a recorded log, ``run`` will call it
+from the estimator thread with the live buffer.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .clips import excitation, make_clips
+from .cost import RolloutCost, StateWeights
+from .errors import AmheError
+from .params import ParameterSpace
+from .rollout import RolloutPool
+from .scene import Scene
+from .trajectory import Trajectory
+
+#: Default ``W_p`` pull standard deviations per parameter (physical units; inertia as shape ratio).
+DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robot_box_friction": 0.05}
+
+
+@dataclass
+class MHESettings:
+    """Hyper-parameters of the estimator (paper Algorithm 1), with units.
+
+    Attributes:
+        window: ``H`` [s], length of the estimation window.
+        every: ``Δt_update`` [s] between updates.
+        iters: ``L_MHE``, sampling iterations per update.
+        samples: ``B``, candidates per iteration.
+        alpha: ``α``, learning rate of the mean/σ update (1 = jump to the elite average).
+        sigma_init: σ each update starts with, in prior-σ units of the space.
+        sigma_floor: ``σ_floor`` in prior-σ units: stop iterating once every σ is below it.
+        pull: name -> σ_pull of ``W_p = diag(1/σ_pull²)`` toward ``p̂⁻``.
+        clip: clip length [s] for multiple shooting, or None for one piece.
+        max_steps: simulated steps per candidate per update (the most excited clips are kept).
+        min_speed: box speed [m/s] below which a clip is considered at rest (uninformative).
+        seed: sampling seed.
+    """
+
+    window: float = 1.0
+    every: float = 0.5
+    iters: int = 3
+    samples: int = 10
+    alpha: float = 0.8
+    sigma_init: float = 0.15
+    sigma_floor: float = 0.01
+    pull: dict = field(default_factory=lambda: dict(DEFAULT_PULL))
+    clip: float | None = 0.1
+    max_steps: int = 150
+    min_speed: float = 0.02
+    seed: int = 0
+
+    def check(self) -> None:
+        """Raise :class:`AmheError` for settings that cannot work."""
+        if not self.window > 0 or not self.every > 0:
+            raise AmheError(f"--window {self.window} and --every {self.every} must be positive seconds")
+        if self.iters < 1 or self.samples < 2:
+            raise AmheError(f"--iters {self.iters} must be >= 1 and --samples {self.samples} >= 2")
+        if not 0 < self.alpha <= 1:
+            raise AmheError(f"--alpha {self.alpha}: expected a learning rate in (0, 1]")
+        if self.clip is not None and not 0 < self.clip <= self.window:
+            raise AmheError(f"--clip {self.clip}: expected 0 < clip <= window ({self.window} s), or 0 for one piece")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class Update:
+    """One MHE update.
+
+    Attributes:
+        t: time [s] of the window's end (data up to here).
+        mean: (d,) estimate ``p̂_t`` (flat coordinates of the space).
+        std: (d,) σ of the sampling distribution at the end.
+        cost: cost of the mean over the window (NaN if skipped).
+        iterations: iterations run (0 if skipped).
+        compute_time: wall time of the update [s].
+        skipped: True if the window held no informative data (estimate kept).
+    """
+
+    t: float
+    mean: np.ndarray
+    std: np.ndarray
+    cost: float
+    iterations: int
+    compute_time: float
+    skipped: bool
+
+
+def log_rank_weights(k: int) -> np.ndarray:
+    """(k,) weights of the k best samples, ∝ log(k + ½) − log(rank), summing to 1 (CMA-ES style)."""
+    w = np.log(k + 0.5) - np.log(np.arange(1, k + 1))
+    return w / w.sum()
+
+
+def gaussian_step(mean: np.ndarray, std: np.ndarray, samples: np.ndarray, costs: np.ndarray,
+                  alpha: float) -> tuple[np.ndarray, np.ndarray]:
+    """The paper's update of a diagonal Gaussian from scored samples.
+
+    Args:
+        mean, std: (d,) current distribution.
+        samples: (B, d) candidates; costs: (B,) their costs.
+        alpha: learning rate α.
+    Returns:
+        new (mean, std): ``(1-α)·old + α·(log-rank-weighted average of the best half)``,
+        σ from the elites' weighted spread around the old mean.
+    """
+    k = max(1, len(costs) // 2)
+    elite = samples[np.argsort(costs)[:k]]
+    w = log_rank_weights(k)
+    mean_new = w @ elite
+    std_new = np.sqrt(w @ (elite - mean) ** 2)
+    return (1 - alpha) * mean + alpha * mean_new, (1 - alpha) * std + alpha * std_new
+
+
+class MovingHorizonEstimator:
+    """Re-estimates the free parameters of ``space`` over a sliding window.
+
+    Args:
+        scene: the model ``f``.
+        space: free parameters; its prior mean is the starting estimate ``p̂_0``.
+        settings: :class:`MHESettings`.
+        weights: ``W_x`` (default :class:`~amhe_cli.cost.StateWeights`).
+        pool: rollout pool to share (e.g. with a planner); else one is created.
+        nthread: threads of a pool created here.
+
+    Attributes:
+        mean: (d,) current estimate ``p̂``.
+        std: (d,) its sampling σ after the last update.
+    """
+
+    def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
+                 weights: StateWeights | None = None, pool: RolloutPool | None = None, nthread: int | None = None):
+        self.settings = settings or MHESettings()
+        self.settings.check()
+        unknown = set(self.settings.pull) - set(DEFAULT_PULL)
+        if unknown:
+            raise AmheError(f"unknown parameter {', '.join(sorted(unknown))} in the W_p pull")
+        self.scene, self.space = scene, space
+        self.weights = weights or StateWeights()
+        self._own_pool = pool is None
+        self.pool = pool or RolloutPool(scene.model, nthread)
+        self._cost: RolloutCost | None = None
+        self.rng = np.random.default_rng(self.settings.seed)
+        self.mean = space.mean0.copy()
+        self.std = space.std0 * self.settings.sigma_init
+        pull = np.empty(space.dim)
+        for name, sl in space.slices().items():
+            pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
+        self.pull_std = pull
+
+    def close(self) -> None:
+        if self._own_pool:
+            self.pool.close()
+
+    def __enter__(self) -> "MovingHorizonEstimator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def window_clips(self, traj: Trajectory, stop: int):
+        """Clips of the window ending at sample ``stop`` (exclusive), or None if it is uninformative."""
+        s = self.settings
+        dt = traj.dt
+        start = max(0, stop - int(round(s.window / dt)))
+        if stop - start < 2:
+            return None
+        length = stop - 1 - start
+        step = length if s.clip is None else max(1, min(int(round(s.clip / dt)), length))
+        starts = np.arange(start, stop - 1, step)
+        horizons = np.minimum(step, stop - 1 - starts)
+        valid = traj.valid()
+        keep = np.array([valid[a:a + h + 1].all() for a, h in zip(starts, horizons)], dtype=bool)
+        score = excitation(traj.slice(start, stop), max(1, step))[starts - start]
+        keep &= score > s.min_speed
+        if not keep.any():
+            return None
+        starts, horizons, score = starts[keep], horizons[keep], score[keep]
+        order = np.argsort(-score)
+        budget = np.cumsum(horizons[order]) <= max(s.max_steps, horizons[order][0])
+        chosen = np.sort(order[budget])
+        return make_clips(traj, self.scene, starts[chosen], horizons[chosen])
+
+    def update(self, traj: Trajectory, t: float) -> Update:
+        """Re-estimate from the window of ``traj`` that ends at time ``t`` [s] (eq. 4, Algorithm 1).
+
+        ``traj`` may be a growing buffer; only samples up to ``t`` are used.
+        """
+        t0 = time.perf_counter()
+        s = self.settings
+        stop = int(np.searchsorted(traj.t, t, side="right"))
+        clips = self.window_clips(traj, stop)
+        if clips is None:
+            return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True)
+        if self._cost is None:
+            self._cost = RolloutCost(self.scene, self.space, clips, self.weights, pool=self.pool)
+        else:
+            self._cost.set_clips(clips)
+        prev = self.mean.copy()
+        self._cost.set_prior(prev, self.pull_std)
+        mu = prev.copy()
+        sigma = self.space.std0 * s.sigma_init
+        floor = self.space.std0 * s.sigma_floor
+        it = 0
+        for it in range(1, s.iters + 1):
+            P = mu + sigma * self.rng.standard_normal((s.samples, mu.size))
+            P[0] = mu  # the current mean competes too
+            P = self.space.project(P)[0]
+            J = self._cost(P)
+            mu, sigma = gaussian_step(mu, sigma, P, J, s.alpha)
+            mu = self.space.project(mu)[0][0]
+            if np.all(sigma <= floor):
+                break
+        self.mean, self.std = mu, np.maximum(sigma, floor)
+        j = float(self._cost(mu[None])[0])
+        return Update(t, mu.copy(), self.std.copy(), j, it, time.perf_counter() - t0, False)

@@ -1,0 +1,176 @@
+"""Replaying a log through the moving horizon estimator, with honest timing.
+
+:func:`replay` steps a :class:`~amhe_cli.mhe.MovingHorizonEstimator` along a
+recorded trajectory. Two clocks:
+
+* as fast as possible (default): an update at every ``Δt_update`` of log time,
+  each estimate stamped with the end of its window;
+* ``realtime=True``: as the online estimator thread would live beside a robot.
+  Log time runs at wall-clock pace; an update starts when it is due *and* the
+  previous one has finished, sees the data up to its start, and its estimate
+  becomes usable only ``compute_time`` later. Updates that start late (fell
+  behind) are counted, each update's lag (usable time − data time) is kept, and
+  the real-time factor is log duration ÷ compute time. The replay does not sleep:
+  the schedule follows from the measured compute times, which is what a live
+  thread on an otherwise idle core would see.
+
+Ground truth, where the log has it, comes from :func:`truth_series`.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .mhe import MovingHorizonEstimator, Update
+from .params import ParameterSpace
+from .trajectory import Trajectory
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced.
+
+    Attributes:
+        updates: every update, in order.
+        usable_at: (n,) log time [s] at which each estimate became usable.
+        behind: number of updates that started later than scheduled (realtime only).
+        compute_time: total estimator compute [s].
+        duration: log time replayed [s].
+        realtime: which clock was used.
+    """
+
+    updates: list[Update]
+    usable_at: np.ndarray
+    behind: int
+    compute_time: float
+    duration: float
+    realtime: bool
+
+    @property
+    def realtime_factor(self) -> float:
+        """Log duration ÷ estimator compute time (≥ 1: the estimator keeps up)."""
+        return self.duration / max(self.compute_time, 1e-9)
+
+    @property
+    def lags(self) -> np.ndarray:
+        """(n,) usable time − data time [s] per update."""
+        return self.usable_at - np.array([u.t for u in self.updates])
+
+
+def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False,
+           progress: Callable[[float], None] | None = None) -> ReplayResult:
+    """Run ``mhe`` along ``traj`` (see the module docstring for the two clocks).
+
+    ``progress`` is called with the log time reached after each update.
+    """
+    s = mhe.settings
+    t_end = float(traj.t[-1])
+    due = float(traj.t[0]) + s.window
+    clock = due  # log time "now" on the live clock
+    updates, usable, behind, total = [], [], 0, 0.0
+    while due <= t_end + 1e-9:
+        start = max(due, clock) if realtime else due
+        if realtime and start > due + 1e-9:
+            behind += 1
+        u = mhe.update(traj, min(start, t_end))
+        total += u.compute_time
+        updates.append(u)
+        usable.append(start + u.compute_time if realtime else u.t)
+        clock = start + u.compute_time
+        due += s.every
+        if progress:
+            progress(min(start, t_end))
+    return ReplayResult(updates, np.array(usable), behind, total, t_end - float(traj.t[0]), realtime)
+
+
+# -- ground truth -------------------------------------------------------------------
+
+#: Columns of a ``<log>.truth.csv`` (as shipped beside the shared logs) per parameter.
+TRUTH_COLUMNS = {
+    "box_mass": ("box_mass_kg",),
+    "box_inertia": ("box_Ixx", "box_Iyy", "box_Izz"),
+    "box_friction": ("mu_floor_at_box_center", "mu_area_weighted"),
+}
+
+
+@dataclass
+class TruthSeries:
+    """Ground truth over time: name -> (T,) or (T, k) values on ``t``."""
+
+    t: np.ndarray
+    values: dict = field(default_factory=dict)
+
+    def at(self, name: str, t: np.ndarray) -> np.ndarray | None:
+        """Truth of ``name`` at times ``t`` (previous sample), or None if unknown."""
+        if name not in self.values:
+            return None
+        idx = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
+        return self.values[name][idx]
+
+
+def truth_series(log: str, traj: Trajectory, csv_path: str | None = None) -> TruthSeries | None:
+    """Ground truth for a log: ``csv_path``, else ``<log stem>.truth.csv`` beside it, else the
+    constant ``amhe_truth`` metadata of logs amhe simulated; None if there is none."""
+    path = Path(csv_path) if csv_path else None
+    if path is None:
+        p = Path(log.rstrip("/"))
+        guess = p.with_name(p.name.split(".mcap")[0].split(".bag")[0] + ".truth.csv")
+        path = guess if guess.is_file() else None
+    if path is not None:
+        with path.open() as f:
+            rows = list(csv.DictReader(f))
+        if rows and "t" in rows[0]:
+            t = np.array([float(r["t"]) for r in rows])
+            vals = {}
+            for name, cols in TRUTH_COLUMNS.items():
+                present = [c for c in cols if c in rows[0]]
+                if name == "box_inertia" and len(present) == 3:
+                    vals[name] = np.array([[float(r[c]) for c in present] for r in rows])
+                elif name != "box_inertia" and present:
+                    vals[name] = np.array([float(r[present[0]]) for r in rows])
+            return TruthSeries(t, vals)
+    import json
+    rec = traj.meta.get("metadata", {}).get("amhe_truth")
+    if rec:
+        vals = {k: np.array([json.loads(v) if isinstance(v, str) else v] * 2, dtype=float) for k, v in rec.items()}
+        return TruthSeries(np.array([traj.t[0], traj.t[-1]]), vals)
+    return None
+
+
+def estimates_table(space: ParameterSpace, result: ReplayResult) -> tuple[list[str], np.ndarray]:
+    """CSV columns ``t, <name>, <name>_std, …`` (vectors as ``<name>_0`` …) and (n, columns) rows,
+    in physical units, one row per update, stamped with the time the estimate became usable."""
+    head = ["t"]
+    for name, sl in space.slices().items():
+        k = sl.stop - sl.start
+        labels = [name] if k == 1 else [f"{name}_{i}" for i in range(k)]
+        head += [x for lab in labels for x in (lab, f"{lab}_std")]
+    rows = []
+    for u, t in zip(result.updates, result.usable_at):
+        val, sd = space.physical(u.mean, u.std)
+        row = [t]
+        for sl in space.slices().values():
+            for i in range(sl.start, sl.stop):
+                row += [val[i], sd[i]]
+        rows.append(row)
+    return head, np.array(rows).reshape(len(rows), len(head))
+
+
+def tracking_error(space: ParameterSpace, result: ReplayResult, truth: TruthSeries) -> dict[str, float]:
+    """RMS error against truth per scalar parameter over informative updates (mass: relative [%])."""
+    head, rows = estimates_table(space, result)
+    informative = np.array([not u.skipped for u in result.updates])
+    seen = np.cumsum(informative) > 0  # from the first informative update on
+    out = {}
+    for name in ("box_mass", "box_friction"):
+        if name in head and name in truth.values and seen.any():
+            est = rows[seen, head.index(name)]
+            tru = truth.at(name, rows[seen, 0])
+            err = (est - tru) / tru * 100 if name == "box_mass" else est - tru
+            out[name] = float(np.sqrt(np.mean(err ** 2)))
+    return out
