@@ -1,0 +1,39 @@
+"""Can the moving horizon estimator keep up with the robot? Replays a log on the live clock.
+
+Usage::
+
+    python benchmarks/mhe_realtime.py [LOG]      # default: ../shared/logs/mass_switch.mcap
+
+Runs ``amhe mhe-replay LOG --realtime`` with the default settings (all rollout
+threads of this machine), prints the updates that fell behind and the lag, and
+as its last line ``realtime_factor=<log duration ÷ estimator compute time>``;
+≥ 1 means the estimator keeps up.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.problem import load_problem
+from amhe_cli.replay import replay
+
+
+def main() -> None:
+    default = Path(__file__).resolve().parents[2] / "shared" / "logs" / "mass_switch.mcap"
+    log = sys.argv[1] if len(sys.argv) > 1 else str(default)
+    problem = load_problem(log, params=("box_mass", "box_friction"))
+    settings = MHESettings()
+    with MovingHorizonEstimator(problem.scene, problem.space, settings) as mhe:
+        res = replay(problem.traj, mhe, realtime=True)
+    busy = [u.compute_time for u in res.updates if not u.skipped]
+    print(f"log {log}: {res.duration:.1f} s, {len(res.updates)} updates every {settings.every} s "
+          f"({len(busy)} informative), window {settings.window} s")
+    print(f"compute per informative update: mean {sum(busy) / max(len(busy), 1):.3f} s, max {max(busy, default=0):.3f} s")
+    print(f"fell behind: {res.behind}; lag mean {res.lags.mean():.3f} s, max {res.lags.max():.3f} s")
+    print(f"realtime_factor={res.realtime_factor:.2f}")
+
+
+if __name__ == "__main__":
+    main()

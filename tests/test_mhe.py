@@ -1,0 +1,162 @@
+"""The moving horizon estimator: its update rule, tracking a change, outputs and errors."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from amhe_cli.errors import AmheError
+from amhe_cli.io.reader import read_float_arrays
+from amhe_cli.io.writer import write_mcap
+from amhe_cli.mhe import MHESettings, MovingHorizonEstimator, gaussian_step, log_rank_weights
+from amhe_cli.params import ParameterSpace
+from amhe_cli.probe import simulate_probe
+from amhe_cli.replay import estimates_table, replay
+from amhe_cli.scene import Scene, SceneConfig
+
+AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+
+
+# -- the update rule on a cheap synthetic cost -----------------------------------
+
+def test_log_rank_weights():
+    w = log_rank_weights(5)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(np.diff(w) < 0) and np.all(w > 0)
+
+
+def test_gaussian_step_moves_toward_low_cost_and_alpha_scales_it():
+    rng = np.random.default_rng(0)
+    mean, std = np.array([0.0, 0.0]), np.array([1.0, 1.0])
+    target = np.array([2.0, -1.0])
+    P = mean + std * rng.standard_normal((200, 2))
+    J = ((P - target) ** 2).sum(axis=1)
+    m1, s1 = gaussian_step(mean, std, P, J, alpha=1.0)
+    mh, sh = gaussian_step(mean, std, P, J, alpha=0.5)
+    assert np.linalg.norm(m1 - target) < np.linalg.norm(mean - target) - 1.0
+    np.testing.assert_allclose(mh, 0.5 * m1)  # (1-α)·old + α·new with old = 0
+    np.testing.assert_allclose(sh, 0.5 * std + 0.5 * s1)
+    # σ is the elites' spread around the *old* mean: a distant optimum widens it along the way,
+    # a bowl centred on the mean tightens it
+    assert s1[0] > s1[1]
+    Jc = (P ** 2).sum(axis=1)
+    _, sc = gaussian_step(mean, std, P, Jc, alpha=1.0)
+    assert np.all(sc < 0.8 * std)
+
+
+def test_iterated_update_converges_and_floor_stops_it():
+    rng = np.random.default_rng(1)
+    mean, std = np.array([5.0]), np.array([2.0])
+    for it in range(1, 100):
+        P = mean + std * rng.standard_normal((12, 1))
+        mean, std = gaussian_step(mean, std, P, (P[:, 0] - 1.5) ** 2, 0.8)
+        if std[0] < 1e-3:
+            break
+    assert abs(mean[0] - 1.5) < 0.05 and it < 99
+
+
+# -- the estimator on generated logs ---------------------------------------------
+
+@pytest.fixture(scope="module")
+def step_log():
+    """A sim log whose box-floor friction steps from 0.3 to 0.6 when the box passes x = 0.55 m."""
+    lunges = tuple(np.linspace(0.06, 0.2, 10))
+    traj = simulate_probe({"box_mass": 2.0, "box_friction": 0.3}, lunges=lunges, friction_step=(0.55, 0.6),
+                          schedule=dict(hold=0.2, retreat=0.4, rest=0.3))
+    return traj
+
+
+def test_pull_keeps_estimate_when_window_is_uninformative(step_log):
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.5, "box_friction": 0.4})
+    with MovingHorizonEstimator(scene, space, MHESettings()) as mhe:
+        u = mhe.update(step_log, 0.9)  # the robot is still standing: the box rests
+    assert u.skipped and u.iterations == 0
+    np.testing.assert_allclose(u.mean, [2.5, 0.4])
+
+
+def test_wp_pull_limits_a_single_update(step_log):
+    scene = Scene(SceneConfig())
+    kw = dict(free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.6})
+    moved = {}
+    for name, pull in (("strong", 0.005), ("weak", 1.0)):
+        space = ParameterSpace(scene, **kw)
+        st = MHESettings(pull={"box_mass": 10.0, "box_friction": pull}, iters=4, samples=12)
+        with MovingHorizonEstimator(scene, space, st) as mhe:
+            t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 0.5
+            moved[name] = abs(mhe.update(step_log, t_push).mean[1] - 0.6)
+    # before the step the truth is 0.3: a weak pull lets one update move much further toward it
+    assert moved["weak"] > 2 * moved["strong"]
+
+
+def test_tracks_a_friction_step(step_log):
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+    mu = step_log.meta["truth_series"]["box_friction"]
+    t_step = step_log.t[np.argmax(mu > 0.45)]
+    with MovingHorizonEstimator(scene, space, MHESettings(pull={"box_mass": 2.0, "box_friction": 0.3})) as mhe:
+        res = replay(step_log, mhe)
+    head, rows = estimates_table(space, res)
+    t, est = rows[:, 0], rows[:, head.index("box_friction")]
+    informative = np.array([not u.skipped for u in res.updates])
+    before = est[informative & (t <= t_step)]
+    after = est[t >= t_step + 3.0]
+    assert before.size and abs(before[-1] - 0.3) < 0.05  # settled on the old floor (from a 0.5 prior)
+    assert abs(after[-1] - 0.6) < abs(after[-1] - 0.3)  # it moved to the new floor, not back
+    assert np.median(after) > 0.45
+
+
+# -- outputs and errors through the CLI ------------------------------------------
+
+@pytest.fixture(scope="module")
+def step_mcap(step_log, tmp_path_factory):
+    path = tmp_path_factory.mktemp("mhe") / "step.mcap"
+    write_mcap(path, step_log)
+    ts = step_log.meta["truth_series"]
+    with open(path.with_name("step.truth.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", "box_mass_kg", "mu_floor_at_box_center"])
+        w.writerows(zip(ts["t"][::5], ts["box_mass"][::5], ts["box_friction"][::5]))
+    return path
+
+
+def test_cli_csv_and_mcap_round_trip(step_mcap, tmp_path):
+    out, mcap, png = tmp_path / "est.csv", tmp_path / "est.mcap", tmp_path / "est.png"
+    proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(out), "--mcap", str(mcap),
+                           "--plot", str(png), "--realtime", "--json", "-q"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(proc.stdout)
+    assert summary["realtime"] and summary["realtime_factor"] > 0 and "box_friction" in summary["tracking_error"]
+    with open(out) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == ["t", "box_mass", "box_mass_std", "box_friction", "box_friction_std"]
+    table = np.array(rows[1:], dtype=float)
+    assert len(table) == summary["updates"] and np.all(np.diff(table[:, 0]) > 0)
+    t, values, labels = read_float_arrays(mcap, "/amhe/estimate")
+    assert labels == rows[0][1:]
+    np.testing.assert_allclose(values, table[:, 1:])
+    assert png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--window", "100"], ["--window", "longer than the log"]),
+    (["--params", "box_mass,volume"], ["volume"]),
+    (["--alpha", "1.5"], ["--alpha"]),
+    (["--sweep", "colour=1,2"], ["--sweep"]),
+])
+def test_cli_errors(step_mcap, tmp_path, args, words):
+    proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(tmp_path / "x.csv"), *args],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+    line = proc.stderr.strip().splitlines()[-1]
+    assert line.startswith("amhe: error:") and all(w in line for w in words)
+
+
+def test_settings_check():
+    with pytest.raises(AmheError, match="--clip"):
+        MHESettings(window=0.5, clip=1.0).check()
