@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .clips import ROLES, Clips
+from .io.quat import quat_conj, quat_mul, quat_to_rotvec
 from .params import ParameterSpace
 from .rollout import RolloutPool
 from .scene import Scene
@@ -92,19 +93,6 @@ class StateWeights:
         return w, role
 
 
-def _quat_error(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """(..., 3) rotation vector of ``q_ref⁻¹ q`` (body frame), quaternions (..., 4) wxyz."""
-    w1, v1 = q_ref[..., :1], q_ref[..., 1:]
-    w2, v2 = q[..., :1], q[..., 1:]
-    w = w1 * w2 + (v1 * v2).sum(-1, keepdims=True)
-    v = w1 * v2 - w2 * v1 - np.cross(v1, v2)
-    sign = np.where(w < 0, -1.0, 1.0)
-    vn = np.linalg.norm(v, axis=-1, keepdims=True)
-    angle = 2.0 * np.arctan2(vn, np.abs(w))
-    scale = np.where(vn > 1e-12, angle / np.maximum(vn, 1e-12), 2.0)
-    return sign * v * scale
-
-
 def state_error(scene: Scene, qpos_ref: np.ndarray, qvel_ref: np.ndarray, qpos: np.ndarray,
                 qvel: np.ndarray) -> np.ndarray:
     """Tangent-space state error ``x - x^r``.
@@ -120,7 +108,7 @@ def state_error(scene: Scene, qpos_ref: np.ndarray, qvel_ref: np.ndarray, qpos: 
     err[..., nv:] = qvel - qvel_ref
     for qadr, vadr in ((scene.base_qpos, scene.base_qvel), (scene.box_qpos, scene.box_qvel)):
         err[..., vadr[:3]] = qpos[..., qadr[:3]] - qpos_ref[..., qadr[:3]]
-        err[..., vadr[3:]] = _quat_error(qpos_ref[..., qadr[3:]], qpos[..., qadr[3:]])
+        err[..., vadr[3:]] = quat_to_rotvec(quat_mul(quat_conj(qpos_ref[..., qadr[3:]]), qpos[..., qadr[3:]]))
     err[..., scene.joint_qvel] = qpos[..., scene.joint_qpos] - qpos_ref[..., scene.joint_qpos]
     return err
 
