@@ -144,3 +144,32 @@ def test_probe_sim_records_then_identifies(tmp_path):
     assert abs(result["estimate"]["box_mass"] - 3.0) / 3.0 < MASS_TOL
     assert abs(result["estimate"]["box_friction"] - 0.5) < 0.03
     assert Path(result["log"]).exists() and (tmp_path / "p.yaml").exists()
+
+
+def test_topic_map_and_pairs(tmp_path):
+    from amhe_cli.errors import AmheError
+    from amhe_cli.problem import parse_box_size, parse_topics
+    m = tmp_path / "map.yaml"
+    m.write_text("topics:\n  box: /vicon/box\n  base: /vicon/go1\n")
+    assert parse_topics(("box=/mocap/crate",), str(m)) == {"box": "/mocap/crate", "base": "/vicon/go1"}
+    m.write_text("box: [not, a, topic]\n")
+    with pytest.raises(AmheError, match="role: topic"):
+        parse_topics((), str(m))
+    with pytest.raises(AmheError, match="not found"):
+        parse_topics((), str(tmp_path / "missing.yaml"))
+    with pytest.raises(AmheError, match="ROLE=TOPIC"):
+        parse_topics(("box",), None)
+    assert parse_box_size("0.4") == (0.4, 0.4, 0.4) and parse_box_size("0.4,0.3,0.2") == (0.4, 0.3, 0.2)
+    with pytest.raises(AmheError, match="--box-size"):
+        parse_box_size("0.4,-1")
+
+
+def test_map_file_selects_the_box_topic(tmp_path, sim_log):
+    """A log whose box topic has an unusual name is read once the map names it."""
+    from amhe_cli.io.reader import read_log
+    m = tmp_path / "map.yaml"
+    m.write_text("box: /mocap/box/pose\n")
+    proc = amhe("probe", sim_log, "--map", m, "--params", "box_friction", "--clips", "4", "--json")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["log"]["roles"]["box"] == "/mocap/box/pose"
+    assert len(read_log(sim_log, topics={"box": "/mocap/box/pose"})) > 100
