@@ -1,0 +1,140 @@
+"""Resample unpacked series onto one uniform grid: step 4 of :mod:`~amhe_cli.io.reader`.
+
+The grid covers the overlap of the roles: linear interpolation of positions,
+slerp of orientations, zero-order hold of the commands; velocities come from
+the log where it has them, else from a backward difference of the resampled
+poses. Base and box poses may be smoothed first (:mod:`~amhe_cli.io.smoothing`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import AmheError
+from ..trajectory import Trajectory
+from .quat import quat_conj, quat_make_continuous, quat_mul, quat_normalize, quat_slerp, quat_to_rotvec
+from .roles import REQUIRED_ROLES
+from .smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
+from .unpack import _Series
+
+#: A grid time counts as observed if its bracketing messages are at most this
+#: many median message periods apart (commands: if the last one is this old).
+_GAP_FACTOR = 1.5
+
+
+def _bracket(t_msg: np.ndarray, grid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Left neighbour index (N_grid,) in [0, N-2] and fraction (N_grid,) in [0, 1]."""
+    i = np.clip(np.searchsorted(t_msg, grid, side="right") - 1, 0, len(t_msg) - 2)
+    u = (grid - t_msg[i]).astype(float) / (t_msg[i + 1] - t_msg[i]).astype(float)
+    return i, u
+
+
+def _lerp(x: np.ndarray, i: np.ndarray, u: np.ndarray) -> np.ndarray:
+    return x[i] + u[:, None] * (x[i + 1] - x[i])
+
+
+def _observed_interp(t_msg: np.ndarray, grid: np.ndarray, period: float) -> np.ndarray:
+    """True where the grid time is a message time or lies between two close messages."""
+    i = np.clip(np.searchsorted(t_msg, grid, side="right") - 1, 0, len(t_msg) - 1)
+    nxt = np.minimum(i + 1, len(t_msg) - 1)
+    at_msg = t_msg[i] == grid
+    return at_msg | ((t_msg[nxt] - t_msg[i]) <= _GAP_FACTOR * period)
+
+
+def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
+    """(T, k) -> (T, k): v[i] = (x[i] - x[i-1]) / dt, v[0] = v[1]."""
+    v = np.empty_like(x)
+    v[1:] = (x[1:] - x[:-1]) / dt
+    v[0] = v[1] if len(x) > 1 else 0.0
+    return v
+
+
+def _backward_angvel(q: np.ndarray, dt: float) -> np.ndarray:
+    """(T, 4) wxyz -> (T, 3) body angular velocity, omega[i] = 2 log(q[i-1]^-1 q[i]) / dt."""
+    w = np.empty((len(q), 3))
+    w[1:] = quat_to_rotvec(quat_mul(quat_conj(q[:-1]), q[1:])) / dt
+    w[0] = w[1] if len(q) > 1 else 0.0
+    return w
+
+
+def _pose_windows(s: "_Series", dt: float, smooth: int | str) -> tuple[int, int, float, float]:
+    """Grid windows (position, orientation) and noise levels [m, rad] of one pose stream."""
+    if smooth != "auto":
+        w = int(smooth) if smooth and smooth > 1 else 1
+        return w, w, 0.0, 0.0
+    period = max(s.period_ns() * 1e-9, dt)
+    sig_p = float(noise_sigma(s.fields["pos"]).max())
+    sig_r = float(noise_sigma(2.0 * quat_make_continuous(s.fields["quat"])[:, 1:]).max())
+    # windows are chosen on the raw message rate, then expressed in grid samples
+    wp = window_for(sig_p, period)
+    wr = window_for(sig_r, period, target=0.2, clean=CLEAN_SIGMA_ROT)
+    to_grid = period / dt
+    return (int(round(wp * to_grid)) | 1 if wp > 1 else 1, int(round(wr * to_grid)) | 1 if wr > 1 else 1,
+            sig_p, sig_r)
+
+
+def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | str, meta: dict) -> Trajectory:
+    """Put the required roles on one grid (see :func:`read_log`)."""
+    cmd = series["joint_commands"]
+    cmd_period = cmd.period_ns()
+    start = max(int(series[r].t_ns[0]) for r in REQUIRED_ROLES)
+    # A held command stays valid for one period after its last message.
+    ends = [int(series[r].t_ns[-1]) for r in REQUIRED_ROLES if r != "joint_commands"]
+    end = min(*ends, int(cmd.t_ns[-1] + cmd_period))
+    t0 = min(int(series[r].t_ns[0]) for r in REQUIRED_ROLES)
+    meta["t0_ns"] = t0
+    if end - start < dt_ns:
+        spans = "; ".join(
+            f"{r} {(series[r].t_ns[0] - t0) * 1e-9:.3f}-{(series[r].t_ns[-1] - t0) * 1e-9:.3f} s"
+            for r in REQUIRED_ROLES
+        )
+        raise AmheError(f"the log's roles overlap for less than one step dt={dt} s: {spans}")
+    n = (end - start) // dt_ns + 1
+    grid = start + dt_ns * np.arange(n, dtype=np.int64)
+    out: dict[str, np.ndarray] = {}
+    observed: dict[str, np.ndarray] = {}
+    measured: dict[str, bool] = {}
+
+    # Joint states.
+    js = series["joint_states"]
+    i, u = _bracket(js.t_ns, grid)
+    out["joint_pos"] = _lerp(js.fields["q"], i, u)
+    measured["joint_states"] = "dq" in js.fields
+    out["joint_vel"] = _lerp(js.fields["dq"], i, u) if "dq" in js.fields else _backward_diff(out["joint_pos"], dt)
+    observed["joint_states"] = _observed_interp(js.t_ns, grid, js.period_ns())
+
+    # Free bodies.
+    for role in ("base", "box"):
+        s = series[role]
+        i, u = _bracket(s.t_ns, grid)
+        pos = _lerp(s.fields["pos"], i, u)
+        quat = quat_slerp(s.fields["quat"][i], s.fields["quat"][i + 1], u)
+        measured[role] = "linvel" in s.fields
+        wp, wr, sig_p, sig_r = _pose_windows(s, dt, smooth)
+        linvel = _backward_diff(pos, dt)
+        if wp > 1:
+            pos, linvel = savgol(pos, wp, dt)
+        if wr > 1:
+            quat = quat_normalize(savgol(quat_make_continuous(quat), wr, dt)[0])
+        angvel = _backward_angvel(quat, dt)
+        if measured[role]:
+            linvel = _lerp(s.fields["linvel"], i, u)
+            angvel = _lerp(s.fields["angvel"], i, u)
+        if wp > 1 or wr > 1:
+            meta.setdefault("smoothing", {})[role] = {"position_window": wp, "orientation_window": wr,
+                                                     "position_noise_m": sig_p, "orientation_noise_rad": sig_r}
+            what = "smoothed (--smooth)" if smooth != "auto" else \
+                f"pose noise ~{sig_p * 1e3:.2g} mm / {sig_r * 1e3:.2g} mrad: smoothed"
+            msg = f"{role} {what} over {wp * dt * 1e3:.0f} ms (position) / {wr * dt * 1e3:.0f} ms (orientation)"
+            meta["warnings"].append(msg)  # issued with the others at the end of read_log
+        out.update({f"{role}_pos": pos, f"{role}_quat": quat, f"{role}_linvel": linvel, f"{role}_angvel": angvel})
+        observed[role] = _observed_interp(s.t_ns, grid, s.period_ns())
+
+    # Commands: zero-order hold of the last command at or before each grid time.
+    j = np.searchsorted(cmd.t_ns, grid, side="right") - 1
+    out["ctrl"] = cmd.fields["q"][j]
+    observed["joint_commands"] = (grid - cmd.t_ns[j]) <= _GAP_FACTOR * cmd_period
+    measured["joint_commands"] = True
+
+    t = (grid - t0).astype(float) * 1e-9
+    return Trajectory(t=t, dt=dt, observed=observed, measured_velocity=measured, meta=meta, **out)
