@@ -2,7 +2,7 @@
 
 The pipeline, one step per module:
 
-1. **open** the log (:mod:`~amhe_cli.io.open`);
+1. **open** the log (:mod:`~amhe_cli.io.logfile`);
 2. **assign roles** to its topics (:mod:`~amhe_cli.io.roles`);
 3. **unpack** the messages of each role into time-stamped arrays
    (:mod:`~amhe_cli.io.unpack`, joint names matched by :mod:`~amhe_cli.io.joints`);
