@@ -14,6 +14,7 @@ and robot–box contacts use the robot geoms' 0.6. Cones are elliptic.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
 
@@ -303,6 +304,9 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
       *our* Go1 model (so a log robot with other leg lengths still stands on it);
     * box floor: the box's median resting z minus half its height, with the box
       size from ``box_size`` (x, y, z edges [m]) or else ``base.box_size``;
+      when no size was given and that floor misses the robot's by more than
+      1 cm, the default size is wrong for this log: the box is taken as a cube
+      whose height puts it on the robot's floor (with a warning);
     * PD gains: the log's ``kp``/``kd`` where it carries them;
     * timestep: the trajectory's grid spacing.
 
@@ -323,7 +327,16 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
     robot_floor = fk_floor - feet_depth
     speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
     rest = speed <= max(0.01, np.percentile(speed, 30))
-    box_floor = float(np.median(traj.box_pos[rest, 2])) - size[2] / 2 - box_depth
+    rest_z = float(np.median(traj.box_pos[rest, 2]))
+    box_floor = rest_z - size[2] / 2 - box_depth
+    if box_size is None and abs(box_floor - robot_floor) > 0.01:
+        edge = 2.0 * (rest_z - robot_floor - box_depth)
+        if edge > 0.02:
+            warnings.warn(f"the box rests {rest_z - robot_floor:.3f} m above the robot's floor, which does not fit the "
+                          f"default {size[2]:.2f} m box: taking a {edge:.3f} m cube (give --box-size if it is not a cube)",
+                          stacklevel=2)
+            size = (edge,) * 3
+            box_floor = robot_floor
     if abs(box_floor - robot_floor) > size[2] / 2:
         raise AmheError(f"box rests {box_floor - robot_floor:+.3f} m from the robot's floor: expected a box of height "
                         f"{size[2]:.3f} m on the floor the robot stands on (check --box-size and the log's frames)")

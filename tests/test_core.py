@@ -565,3 +565,17 @@ def test_plant_trajectory_records_gains_and_masks(traj):
 def test_plant_observed_masks_are_independent(traj):
     masks = list(traj.observed.values())
     assert not any(np.shares_memory(a, b) for i, a in enumerate(masks) for b in masks[i + 1:])
+
+
+def test_scene_infers_another_box_height_from_the_robots_floor():
+    """A log of a 0.30 m box read without --box-size: the default 0.38 m would float it 4 cm."""
+    from amhe_cli.probe import simulate_probe
+    from amhe_cli.scene import infer_scene_config
+    traj = simulate_probe({"box_mass": 3.0}, config=SceneConfig(box_size=(0.3, 0.3, 0.3)), lunges=(0.05,))
+    with pytest.warns(UserWarning, match="cube"):
+        cfg = infer_scene_config(traj)
+    assert cfg.box_size[2] == pytest.approx(0.30, abs=0.003)
+    assert abs(cfg.floor_height) < 0.002 and cfg.robot_floor_height == cfg.floor_height
+    # an explicit size is taken as given
+    cfg = infer_scene_config(traj, box_size=(0.3, 0.3, 0.3))
+    assert cfg.box_size == (0.3, 0.3, 0.3) and abs(cfg.floor_height) < 0.001
