@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .clips import ROLES, Clips
+from .clips import Clips
 from .io.quat import quat_conj, quat_mul, quat_to_rotvec
 from .params import ParameterSpace
 from .rollout import RolloutPool

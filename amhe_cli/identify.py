@@ -148,8 +148,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         es = cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0, opts)
         history = []
         evals = 0
-        best_p, best_j = p0.copy(), float(cost(p0[None])[0])
-        cost_prior = best_j
+        cost_prior = best_j = float(cost(p0[None])[0])
         samples_z, samples_j, samples_clip, samples_gen = [], [], [], []
         while not es.stop():
             Z = np.array(es.ask())
@@ -163,9 +162,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             samples_j.append(J[ok])
             samples_clip.append(br.per_clip[ok])
             samples_gen += [len(history)] * int(ok.sum())
-            i = int(np.argmin(J))
-            if J[i] < best_j:
-                best_j, best_p = float(J[i]), P[i].copy()
+            best_j = min(best_j, float(J.min()))
             history.append({"generation": len(history) + 1, "best": float(J.min()), "mean_cost": float(J.mean()),
                             "sigma": float(es.sigma), "mean": (p0 + np.asarray(es.mean) * s0).tolist()})
             if progress:

@@ -15,7 +15,7 @@ and robot–box contacts use the robot geoms' 0.6. Cones are elliptic.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from importlib import resources
 
 import mujoco
