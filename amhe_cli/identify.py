@@ -7,7 +7,7 @@ the estimate is the minimum of a quadratic fitted to the late generations
 (:mod:`~amhe_cli.surrogate`: robust to the rough floor that rocking contacts
 give the cost), and the belief's covariance is the larger of the local Fisher
 information (:mod:`~amhe_cli.uncertainty`) and a bootstrap over clips of that
-fit.
+fit, and never narrower than CMA-ES's own search spread when it stopped.
 
 CMA-ES searches in prior-σ units, ``z = (p - p0) / σ_prior``, so a kilogram and a
 friction coefficient are steps of comparable meaning.
@@ -186,6 +186,11 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             boot_cov = np.cov((minima * s0).T).reshape(space.dim, space.dim)
             if np.trace(boot_cov / np.outer(s0, s0)) > np.trace(curv.cov / np.outer(s0, s0)):
                 curv = with_covariance(curv, boot_cov)
+        # a search stopped before converging has not narrowed further than its own spread
+        search_std = np.asarray(es.result.stds, dtype=float) * s0
+        if np.any(search_std > curv.std):
+            scale = np.maximum(search_std, curv.std) / np.maximum(curv.std, 1e-300)
+            curv = with_covariance(curv, curv.cov * np.outer(scale, scale))
     return IdentifyResult(
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
