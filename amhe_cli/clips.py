@@ -157,19 +157,33 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     return make_clips(traj, scene, starts, horizons)
 
 
-def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_steps: int | None) -> Clips:
-    """Tile samples ``start..stop`` with consecutive clips of ``clip_steps`` steps.
+def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_steps: int | None,
+                 max_steps: int | None = None, min_speed: float = 0.0) -> Clips | None:
+    """The clips of an estimation window, samples ``start`` to ``stop`` (exclusive).
 
-    ``clip_steps=None`` rolls the window out in one piece from its first state
-    (the paper's MHE, eq. 4); a number resets to the recorded state every
-    ``clip_steps`` steps (multiple shooting).
+    The window is tiled with consecutive clips of ``clip_steps`` steps, each
+    reset to the recorded state (multiple shooting), or rolled out in one piece
+    with ``clip_steps=None`` (the paper's eq. 4). Clips that cross a gap, or
+    whose :func:`excitation` is not above ``min_speed`` [m/s], are dropped; of
+    the rest, the most excited are kept up to ``max_steps`` simulated steps.
+
+    Returns:
+        the :class:`Clips`, or None when the window holds nothing informative.
     """
-    stop = min(stop, len(traj) - 1)
-    length = stop - start
-    if length < 1:
-        raise AmheError("empty estimation window")
+    if stop - start < 2:
+        return None
+    length = stop - 1 - start
     step = length if clip_steps is None else max(1, min(clip_steps, length))
-    starts = np.arange(start, stop, step)
-    horizons = np.minimum(step, stop - starts)
-    keep = horizons >= 1
-    return make_clips(traj, scene, starts[keep], horizons[keep])
+    starts = np.arange(start, stop - 1, step)
+    horizons = np.minimum(step, stop - 1 - starts)
+    valid = traj.valid()
+    keep = np.array([valid[a:a + h + 1].all() for a, h in zip(starts, horizons)], dtype=bool)
+    score = excitation(traj.slice(start, stop), max(1, step))[starts - start]
+    keep &= score > min_speed
+    if not keep.any():
+        return None
+    starts, horizons, score = starts[keep], horizons[keep], score[keep]
+    order = np.argsort(-score)
+    budget = np.inf if max_steps is None else max(max_steps, horizons[order][0])
+    chosen = np.sort(order[np.cumsum(horizons[order]) <= budget])
+    return make_clips(traj, scene, starts[chosen], horizons[chosen])

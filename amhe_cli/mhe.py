@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .clips import excitation, make_clips
+from .clips import window_clips
 from .cost import RolloutCost, StateWeights
 from .errors import AmheError
 from .params import ParameterSpace
@@ -192,25 +192,9 @@ class MovingHorizonEstimator:
     def window_clips(self, traj: Trajectory, stop: int):
         """Clips of the window ending at sample ``stop`` (exclusive), or None if it is uninformative."""
         s = self.settings
-        dt = traj.dt
-        start = max(0, stop - int(round(s.window / dt)))
-        if stop - start < 2:
-            return None
-        length = stop - 1 - start
-        step = length if s.clip is None else max(1, min(int(round(s.clip / dt)), length))
-        starts = np.arange(start, stop - 1, step)
-        horizons = np.minimum(step, stop - 1 - starts)
-        valid = traj.valid()
-        keep = np.array([valid[a:a + h + 1].all() for a, h in zip(starts, horizons)], dtype=bool)
-        score = excitation(traj.slice(start, stop), max(1, step))[starts - start]
-        keep &= score > s.min_speed
-        if not keep.any():
-            return None
-        starts, horizons, score = starts[keep], horizons[keep], score[keep]
-        order = np.argsort(-score)
-        budget = np.cumsum(horizons[order]) <= max(s.max_steps, horizons[order][0])
-        chosen = np.sort(order[budget])
-        return make_clips(traj, self.scene, starts[chosen], horizons[chosen])
+        start = max(0, stop - int(round(s.window / traj.dt)))
+        clip_steps = None if s.clip is None else int(round(s.clip / traj.dt))
+        return window_clips(traj, self.scene, start, stop, clip_steps, s.max_steps, s.min_speed)
 
     def update(self, traj: Trajectory, t: float) -> Update:
         """Re-estimate from the window of ``traj`` that ends at time ``t`` [s] (eq. 4, Algorithm 1).
