@@ -25,7 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .clips import Clips
+from .clips import ROLES, Clips
+from .errors import AmheError
 from .io.quat import quat_conj, quat_mul, quat_to_rotvec
 from .params import ParameterSpace
 from .rollout import RolloutPool
@@ -64,12 +65,10 @@ class StateWeights:
     def __post_init__(self) -> None:
         unknown = set(self.sigma) - set(DEFAULT_SIGMA)
         if unknown:
-            from .errors import AmheError
             raise AmheError(f"unknown state group {sorted(unknown)} in W_x: expected {sorted(DEFAULT_SIGMA)}")
         self.sigma = {**DEFAULT_SIGMA, **{k: float(v) for k, v in self.sigma.items()}}
         bad = [k for k, v in self.sigma.items() if not v > 0]
         if bad:
-            from .errors import AmheError
             raise AmheError(f"W_x σ of {', '.join(bad)} must be positive (inf leaves a group out)")
 
     def vector(self, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
@@ -78,12 +77,13 @@ class StateWeights:
         w = np.zeros(2 * nv)
         role = np.zeros(2 * nv, dtype=int)
         b = scene.box_qvel
+        base, joints, box = (ROLES.index(r) for r in ("base", "joint_states", "box"))
         groups = {  # group: (tangent indices, role, velocity group)
-            "base_pos": (scene.base_qvel[:3], 0, "base_linvel"),
-            "base_rot": (scene.base_qvel[3:], 0, "base_angvel"),
-            "joint_pos": (scene.joint_qvel, 1, "joint_vel"),
-            "box_pos": (b[:2], 2, "box_linvel"), "box_height": (b[2:3], 2, "box_vz"),
-            "box_tilt": (b[3:5], 2, "box_tiltrate"), "box_yaw": (b[5:6], 2, "box_yawrate"),
+            "base_pos": (scene.base_qvel[:3], base, "base_linvel"),
+            "base_rot": (scene.base_qvel[3:], base, "base_angvel"),
+            "joint_pos": (scene.joint_qvel, joints, "joint_vel"),
+            "box_pos": (b[:2], box, "box_linvel"), "box_height": (b[2:3], box, "box_vz"),
+            "box_tilt": (b[3:5], box, "box_tiltrate"), "box_yaw": (b[5:6], box, "box_yawrate"),
         }
         for name, (idx, r, vel) in groups.items():
             w[idx] = 1.0 / self.sigma[name] ** 2
@@ -180,6 +180,11 @@ class RolloutCost:
         self._groups = [np.flatnonzero(clips.horizon == h) for h in np.unique(clips.horizon)]
         # (N_c, H_max, 2nv) weights with unobserved roles zeroed
         self._wmask = self._w[None, None, :] * clips.observed[:, :, self._role]
+
+    @property
+    def observed_components(self) -> int:
+        """Number of weighted state components over all clips and steps (residual count)."""
+        return int(np.count_nonzero(self._wmask))
 
     def set_prior(self, mean: np.ndarray, std: np.ndarray | None = None) -> None:
         """Move the prior ``p0`` (and optionally its σ), e.g. to the previous MHE estimate ``p̂⁻``."""

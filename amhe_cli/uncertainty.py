@@ -87,7 +87,7 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     prior_prec = np.diag(cost.prior_weight / cost.prior_std ** 2)
     # a parameter nothing informs keeps a belief no wider than its bounds
     prior_prec = prior_prec + np.diag(1.0 / (space.upper - space.lower) ** 2)
-    n_obs = max(int(np.count_nonzero(cost._wmask)), 1)
+    n_obs = max(cost.observed_components, 1)
     j0 = float((rk ** 2).sum())
     s2 = j0 / max(n_obs - d, 1)
     cov = np.linalg.inv(F + prior_prec)
