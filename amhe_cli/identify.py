@@ -177,10 +177,8 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         valley = fit_valley(Zs, Js, z_mean)
         z_est = valley.z_min if valley is not None and valley.convex else z_mean
         estimate = space.project(p0 + z_est * s0)[0][0]
-        br = cost.evaluate(estimate[None])
-        j_est, data = float(br.total[0]), float(br.data[0])
-        evals += 1
-        curv = curvature(cost, estimate)
+        curv = curvature(cost, estimate)  # its centre rollout also gives J at the estimate
+        j_est, data = curv.cost, curv.data
         if valley is not None and valley.convex:
             minima = bootstrap_minima(Zs, Ks, valley, settings.prior_weight, rng=np.random.default_rng(settings.seed))
             boot_cov = np.cov((minima * s0).T).reshape(space.dim, space.dim)

@@ -40,6 +40,7 @@ class Curvature:
         std: (d,) sqrt of its diagonal.
         corr: (d, d) correlation matrix.
         cost: ``J`` at ``point``.
+        data: the state-matching part of ``J`` at ``point``.
         residual_scale: ``s²``, mean squared whitened residual per observed component.
     """
 
@@ -49,6 +50,7 @@ class Curvature:
     std: np.ndarray
     corr: np.ndarray
     cost: float
+    data: float
     residual_scale: float
 
 
@@ -107,7 +109,7 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
         corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
     np.fill_diagonal(corr, 1.0)
     total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
-    return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, s2)
+    return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, j0, s2)
 
 
 def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
@@ -117,4 +119,5 @@ def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
     np.fill_diagonal(corr, 1.0)
-    return Curvature(curv.point, curv.fisher, cov, std, np.clip(corr, -1, 1), curv.cost, curv.residual_scale)
+    return Curvature(curv.point, curv.fisher, cov, std, np.clip(corr, -1, 1), curv.cost, curv.data,
+                     curv.residual_scale)
