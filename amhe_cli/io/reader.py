@@ -12,7 +12,6 @@ The pipeline, one step per module:
 :func:`inspect_log` runs only steps 1 and 2 on message timestamps (no
 decoding) to describe a log for ``amhe probe``.
 
-The names of those modules remain importable from here.
 """
 
 from __future__ import annotations
@@ -27,60 +26,12 @@ import numpy as np
 from ..errors import AmheError
 from ..trajectory import GO1_JOINTS, Trajectory
 
-# The steps' modules; private names included, so that every name this module
-# held before the split stays importable from here.
-from .joints import _LEG_ALIASES, _PART_ALIASES, canonical_joint_name, match_joints
-from .logfile import (
-    _FORMAT_NAMES,
-    _NOT_A_LOG,
-    _detect_format,
-    _mcap_metadata,
-    _one_line,
-    _open_log,
-    _open_mcap_stream,
-    _OpenLog,
-    _sha256,
-)
-from .resample import (
-    _GAP_FACTOR,
-    _backward_angvel,
-    _backward_diff,
-    _bracket,
-    _lerp,
-    _observed_interp,
-    _pose_windows,
-    _resample,
-)
-from .roles import (
-    _HINTS,
-    _LOWCMD_TYPES,
-    _LOWSTATE_TYPES,
-    _POSE_TYPES,
-    _ROLE_WHAT,
-    _TYPE_PRIOR,
-    GAINS_ROLE,
-    REQUIRED_ROLES,
-    ROLE_TYPES,
-    _expected_types,
-    _hint_score,
-    _short_type,
-    _topics_present,
-    assign_roles,
-)
-from .unpack import (
-    _MAX_BAD_FRACTION,
-    GAINS_RECORD,
-    _attr,
-    _gains,
-    _motors,
-    _parse_floats,
-    _quat,
-    _Series,
-    _stamp_ns,
-    _unpack_pose,
-    _Unpacker,
-    _vec,
-)
+# the steps' modules (see the module docstring)
+from .joints import canonical_joint_name, match_joints
+from .logfile import _one_line, _open_log, _sha256
+from .resample import _resample
+from .roles import GAINS_ROLE, REQUIRED_ROLES, _short_type, _topics_present, assign_roles
+from .unpack import _gains, _Series, _Unpacker
 
 __all__ = [
     "REQUIRED_ROLES",
