@@ -229,24 +229,9 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         return
     click.echo(f"log {log}: {len(problem.traj) * problem.traj.dt:.1f} s, box floor z={problem.scene.config.floor_height:+.3f} m, "
                f"robot floor z={problem.scene.config.robot_floor_height:+.3f} m")
-    print_summary(result, truth=log_truth(problem.traj))
+    from .probe import metadata_truth
+    print_summary(result, truth=metadata_truth(problem.traj))
     click.echo(f"belief written to {out_path}" + (f"; plot to {plot_path}" if plot_path else ""))
-
-
-def log_truth(traj) -> dict | None:
-    """Ground truth carried by a log amhe simulated (metadata record ``amhe_truth``), else None."""
-    from .probe import TRUTH_RECORD
-    rec = traj.meta.get("metadata", {}).get(TRUTH_RECORD)
-    if not rec:
-        return None
-    out = {}
-    for k, v in rec.items():
-        try:
-            val = json.loads(v) if isinstance(v, str) else v
-        except json.JSONDecodeError:
-            continue
-        out[k] = val
-    return out
 
 
 def parse_truth(pairs: tuple[str, ...]) -> dict:

@@ -14,6 +14,8 @@ estimation step" (§V). Here that is two things:
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 
 from .clips import sample_clips
@@ -27,6 +29,20 @@ from .uncertainty import Curvature, curvature
 
 #: Metadata record holding the ground truth of logs amhe simulates.
 TRUTH_RECORD = "amhe_truth"
+
+
+def metadata_truth(traj: Trajectory) -> dict | None:
+    """Ground truth a log amhe simulated carries (record :data:`TRUTH_RECORD`): name -> value, else None."""
+    rec = traj.meta.get("metadata", {}).get(TRUTH_RECORD)
+    if not rec:
+        return None
+    out = {}
+    for k, v in rec.items():
+        try:
+            out[k] = json.loads(v) if isinstance(v, str) else v
+        except json.JSONDecodeError:
+            continue
+    return out
 
 #: Gap between the standing robot's head and the box's back face [m].
 HEAD_GAP = 0.01

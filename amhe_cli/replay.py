@@ -134,10 +134,10 @@ def truth_series(log: str, traj: Trajectory, csv_path: str | None = None) -> Tru
                 elif name != "box_inertia" and present:
                     vals[name] = np.array([float(r[present[0]]) for r in rows])
             return TruthSeries(t, vals)
-    import json
-    rec = traj.meta.get("metadata", {}).get("amhe_truth")
+    from .probe import metadata_truth
+    rec = metadata_truth(traj)
     if rec:
-        vals = {k: np.array([json.loads(v) if isinstance(v, str) else v] * 2, dtype=float) for k, v in rec.items()}
+        vals = {k: np.array([v] * 2, dtype=float) for k, v in rec.items()}
         return TruthSeries(np.array([traj.t[0], traj.t[-1]]), vals)
     return None
 
