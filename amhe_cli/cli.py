@@ -89,10 +89,11 @@ def _out_path(out: str | None, log: str, suffix: str, force: bool) -> Path:
     return path
 
 
-def _progress(total: int, desc: str, quiet: bool):
+def _progress(total: float, desc: str, quiet: bool, counter: str = "{n_fmt}/{total_fmt} gen"):
+    """A progress bar on stderr (off with --quiet/--json, and when stderr is not a terminal)."""
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, unit="gen", file=sys.stderr, disable=True if quiet else None, leave=False,
-                bar_format="{desc}: {n_fmt}/{total_fmt} gen |{bar}| {elapsed} {postfix}")
+    return tqdm(total=total, desc=desc, file=sys.stderr, disable=True if quiet else None, leave=False,
+                bar_format="{desc}: " + counter + " |{bar}| {elapsed} {postfix}")
 
 
 def _fmt(v) -> str:
@@ -409,12 +410,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         raise AmheError(f"--truth {truth_csv}: expected a CSV with a 't' column and truth columns")
 
     def run_one(st: MHESettings):
-        from tqdm import tqdm
-        bar = tqdm(total=round(problem.traj.duration, 2), unit="s", file=sys.stderr, leave=False,
-                   disable=True if (quiet or as_json) else None, desc="mhe-replay",
-                   bar_format="{desc}: {n:.1f}/{total:.1f} s of log |{bar}| {elapsed}")
-        space = problem.space
-        with MovingHorizonEstimator(problem.scene, space, st, nthread=threads) as mhe:
+        bar = _progress(round(problem.traj.duration, 2), "mhe-replay", quiet or as_json,
+                        counter="{n:.1f}/{total:.1f} s of log")
+        with MovingHorizonEstimator(problem.scene, problem.space, st, nthread=threads) as mhe:
             res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n))
         bar.close()
         return res
