@@ -9,7 +9,6 @@ the planner. The plant may use a finer timestep than the recorded grid.
 
 from __future__ import annotations
 
-from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -38,14 +37,12 @@ class SimPlant:
         self.scene = Scene(self.config)
         self.model = self.scene.model
         self.truth = dict(truth or {})
-        space = ParameterSpace(self.scene, free=tuple(PARAMETERS), prior=self.truth)
-        self.truth_values = space.values(space.mean0)
-        space.write(self.model, space.mean0)
+        self._apply_truth()
         self.data = mujoco.MjData(self.model)
         self.substeps = max(1, int(round(record_dt / self.model.opt.timestep)))
         self.record_dt = self.substeps * self.model.opt.timestep
         self.control_steps = max(1, int(round(control_period / self.record_dt)))
-        self._log: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl")}
+        self._log: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "mass", "friction")}
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray | None = None) -> None:
         """Set the state and clear the recording."""
@@ -54,6 +51,7 @@ class SimPlant:
         self.data.qvel[:] = 0 if qvel is None else qvel
         mujoco.mj_forward(self.model, self.data)
         self._log = {k: [] for k in self._log}
+        self._truth_at_reset = dict(self.truth_values)
 
     def step(self, target: np.ndarray) -> None:
         """Hold joint targets (12,) [rad] for one control period, recording each grid sample."""
@@ -63,17 +61,28 @@ class SimPlant:
             self._log["qpos"].append(self.data.qpos.copy())
             self._log["qvel"].append(self.data.qvel.copy())
             self._log["ctrl"].append(self.data.ctrl.copy())
+            self._log["mass"].append(self.truth_values["box_mass"])
+            self._log["friction"].append(self.truth_values["box_friction"])
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
 
     def set_param(self, name: str, value) -> None:
         """Change a true parameter mid-run (a task event: mass switch, friction change)."""
         self.truth[name] = value
+        self._apply_truth()
+
+    def _apply_truth(self) -> None:
+        """Write ``self.truth`` (the rest nominal) into the plant's model; refresh ``truth_values``."""
         space = ParameterSpace(self.scene, free=tuple(PARAMETERS), prior=self.truth)
         self.truth_values = space.values(space.mean0)
         space.write(self.model, space.mean0)
 
     def trajectory(self) -> Trajectory:
-        """Everything recorded since :meth:`reset`, as a :class:`Trajectory` on ``record_dt``."""
+        """Everything recorded since :meth:`reset`, as a :class:`Trajectory` on ``record_dt``.
+
+        ``meta['truth']`` holds the true parameters at the reset, and
+        ``meta['truth_series']`` ``{"t", "box_mass", "box_friction"}`` (T,) arrays
+        of the truth at every sample, task events included.
+        """
         s = self.scene
         qpos = np.array(self._log["qpos"])
         qvel = np.array(self._log["qvel"])
@@ -90,8 +99,10 @@ class SimPlant:
             kp=self.model.actuator_gainprm[:, 0].copy(), kd=-self.model.actuator_biasprm[:, 2].copy(),
             observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": True, "joint_states": True, "box": True},
-            meta={"source": "sim", "truth": {k: _plain(v) for k, v in self.truth_values.items()},
-                  "scene": replace(self.config).to_dict()},
+            meta={"source": "sim", "truth": {k: _plain(v) for k, v in self._truth_at_reset.items()},
+                  "truth_series": {"t": t - (t[0] if n else 0.0), "box_mass": np.array(self._log["mass"]),
+                                   "box_friction": np.array(self._log["friction"])},
+                  "scene": self.config.to_dict()},
         )
 
 

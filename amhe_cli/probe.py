@@ -67,9 +67,9 @@ def simulate_probe(truth: dict, config: SceneConfig | None = None, seed: int = 0
             switches to μ after once the box centre passes x = x_b (task T4's
             event, DESIGN.md §6).
     Returns:
-        the recorded :class:`Trajectory` on the plant's 2 ms grid, with
-        ``meta['truth']`` (values at the start) and ``meta['truth_series']``:
-        ``{"t": (T,), "box_mass": (T,), "box_friction": (T,)}`` of the plant.
+        the recorded :class:`Trajectory` on the plant's 2 ms grid, with the
+        plant's ``meta['truth']`` and ``meta['truth_series']`` (see
+        :meth:`~amhe_cli.plant.SimPlant.trajectory`).
     """
     cfg = config or SceneConfig()
     rng = np.random.default_rng(seed)
@@ -80,19 +80,12 @@ def simulate_probe(truth: dict, config: SceneConfig | None = None, seed: int = 0
                                       cfg.floor_height + cfg.box_size[2] / 2]
     qpos[plant.scene.box_qpos[3:]] = [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
     plant.reset(qpos, qvel)
-    truth0 = dict(plant.truth_values)
-    mu_series = []
     for target in lunge_schedule(plant.control_steps * plant.record_dt, lunges=lunges, **(schedule or {})):
         if friction_step is not None and plant.data.qpos[plant.scene.box_qpos[0]] > friction_step[0] \
                 and plant.truth_values["box_friction"] != friction_step[1]:
             plant.set_param("box_friction", friction_step[1])
-        mu_series += [plant.truth_values["box_friction"]] * plant.control_steps
         plant.step(target)
-    traj = plant.trajectory()
-    traj.meta["truth"] = {k: (float(v) if np.isscalar(v) else [float(x) for x in v]) for k, v in truth0.items()}
-    traj.meta["truth_series"] = {"t": traj.t.copy(), "box_mass": np.full(len(traj), truth0["box_mass"]),
-                                 "box_friction": np.array(mu_series[:len(traj)])}
-    return traj
+    return plant.trajectory()
 
 
 def assess(traj: Trajectory, scene: Scene, space: ParameterSpace, n_clips: int = 32,
