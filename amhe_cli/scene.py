@@ -147,6 +147,8 @@ class Scene:
         if act_joint != jids:
             raise RuntimeError("bundled model's actuators are not in GO1_JOINTS order")
         self.nstate = mujoco.mj_stateSize(m, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._state_template = np.empty(self.nstate)  # the default state, for full_state()
+        mujoco.mj_getState(m, mujoco.MjData(m), self._state_template, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
     # -- state layout -------------------------------------------------------
     def qpos_qvel(self, traj: Trajectory) -> tuple[np.ndarray, np.ndarray]:
@@ -178,10 +180,7 @@ class Scene:
         qpos = np.atleast_2d(qpos)
         qvel = np.atleast_2d(qvel)
         m = self.model
-        template = np.empty(self.nstate)
-        data = mujoco.MjData(m)
-        mujoco.mj_getState(m, data, template, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        out = np.tile(template, (qpos.shape[0], 1))
+        out = np.tile(self._state_template, (qpos.shape[0], 1))
         out[:, 0] = time
         out[:, 1:1 + m.nq] = qpos
         out[:, 1 + m.nq:1 + m.nq + m.nv] = qvel
