@@ -56,18 +56,18 @@ class Belief:
     def to_dict(self) -> dict:
         params = {}
         for name, val in self.values.items():
-            entry = {"value": _plain(val), "unit": PARAMETERS[name].unit if name in PARAMETERS else ""}
+            entry = {"value": to_plain(val), "unit": PARAMETERS[name].unit if name in PARAMETERS else ""}
             if name in self.std:
-                entry["std"] = _plain(self.std[name])
+                entry["std"] = to_plain(self.std[name])
             params[name] = entry
         return {
             "amhe_belief": FORMAT_VERSION,
             "parameters": params,
             "free": list(self.free),
-            "correlation": {"labels": list(self.labels), "matrix": _plain(self.correlation)},
-            "cost": {k: _plain(v) for k, v in self.cost.items()},
-            "scene": _plain(self.scene),
-            "provenance": _plain(self.provenance),
+            "correlation": {"labels": list(self.labels), "matrix": to_plain(self.correlation)},
+            "cost": {k: to_plain(v) for k, v in self.cost.items()},
+            "scene": to_plain(self.scene),
+            "provenance": to_plain(self.provenance),
         }
 
     def save(self, path: str | os.PathLike, force: bool = False) -> Path:
@@ -113,14 +113,14 @@ class Belief:
                    provenance=d.get("provenance", {}))
 
 
-def _plain(v):
-    """numpy -> plain Python for YAML/JSON."""
+def to_plain(v):
+    """numpy scalars and arrays (also inside dicts and lists) -> plain Python, for YAML/JSON."""
     if isinstance(v, dict):
-        return {k: _plain(x) for k, x in v.items()}
+        return {k: to_plain(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_plain(x) for x in v]
+        return [to_plain(x) for x in v]
     if isinstance(v, np.ndarray):
-        return _plain(v.tolist())
+        return to_plain(v.tolist())
     if isinstance(v, (np.floating, np.integer, np.bool_)):
         return v.item()
     return v

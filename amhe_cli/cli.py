@@ -19,7 +19,7 @@ import click
 import numpy as np
 
 from . import __version__
-from .belief import Belief
+from .belief import Belief, to_plain
 from .errors import AmheError
 from .identify import IdentifyResult, IdentifySettings, identify, settings_dict
 from .params import PARAMETERS, parse_names
@@ -105,10 +105,8 @@ def _fmt(v) -> str:
 def belief_from_result(result: IdentifyResult, problem: Problem, command: str, log: str) -> Belief:
     """A :class:`Belief` holding an identification result and its provenance."""
     s = result.summary()
-    values = problem.space.values(result.estimate)
-    values = {n: (v if np.isscalar(v) else [float(x) for x in v]) for n, v in values.items()}
     return Belief(
-        values=values, std=s["std"], free=list(problem.space.free), labels=s["labels"],
+        values=to_plain(problem.space.values(result.estimate)), std=s["std"], free=list(problem.space.free), labels=s["labels"],
         correlation=s["correlation"], cost=s["cost"], scene=problem.scene.config.to_dict(),
         provenance={
             "command": command, "amhe_version": __version__, "log": str(log),

@@ -13,6 +13,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from .belief import to_plain
 from .params import ParameterSpace, PARAMETERS
 from .scene import Scene, SceneConfig
 from .trajectory import Trajectory
@@ -99,12 +100,9 @@ class SimPlant:
             kp=self.model.actuator_gainprm[:, 0].copy(), kd=-self.model.actuator_biasprm[:, 2].copy(),
             observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": True, "joint_states": True, "box": True},
-            meta={"source": "sim", "truth": {k: _plain(v) for k, v in self._truth_at_reset.items()},
+            meta={"source": "sim", "truth": to_plain(self._truth_at_reset),
                   "truth_series": {"t": t - (t[0] if n else 0.0), "box_mass": np.array(self._log["mass"]),
                                    "box_friction": np.array(self._log["friction"])},
                   "scene": self.config.to_dict()},
         )
 
-
-def _plain(v):
-    return float(v) if np.isscalar(v) else [float(x) for x in v]
