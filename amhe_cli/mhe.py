@@ -36,6 +36,7 @@ from .cost import RolloutCost, StateWeights
 from .errors import AmheError
 from .params import ParameterSpace
 from .rollout import RolloutPool
+from .sampling import gaussian_step
 from .scene import Scene
 from .trajectory import Trajectory
 
@@ -115,32 +116,6 @@ class Update:
     iterations: int
     compute_time: float
     skipped: bool
-
-
-def log_rank_weights(k: int) -> np.ndarray:
-    """(k,) weights of the k best samples, ∝ log(k + ½) − log(rank), summing to 1 (CMA-ES style)."""
-    w = np.log(k + 0.5) - np.log(np.arange(1, k + 1))
-    return w / w.sum()
-
-
-def gaussian_step(mean: np.ndarray, std: np.ndarray, samples: np.ndarray, costs: np.ndarray,
-                  alpha: float) -> tuple[np.ndarray, np.ndarray]:
-    """The paper's update of a diagonal Gaussian from scored samples.
-
-    Args:
-        mean, std: (d,) current distribution.
-        samples: (B, d) candidates; costs: (B,) their costs.
-        alpha: learning rate α.
-    Returns:
-        new (mean, std): ``(1-α)·old + α·(log-rank-weighted average of the best half)``,
-        σ from the elites' weighted spread around the old mean.
-    """
-    k = max(1, len(costs) // 2)
-    elite = samples[np.argsort(costs)[:k]]
-    w = log_rank_weights(k)
-    mean_new = w @ elite
-    std_new = np.sqrt(w @ (elite - mean) ** 2)
-    return (1 - alpha) * mean + alpha * mean_new, (1 - alpha) * std + alpha * std_new
 
 
 class MovingHorizonEstimator:

@@ -13,7 +13,8 @@ import pytest
 from amhe_cli.errors import AmheError
 from amhe_cli.io.reader import read_float_arrays
 from amhe_cli.io.writer import write_mcap
-from amhe_cli.mhe import MHESettings, MovingHorizonEstimator, gaussian_step, log_rank_weights
+from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.sampling import gaussian_step, log_rank_weights
 from amhe_cli.params import ParameterSpace
 from amhe_cli.probe import simulate_probe
 from amhe_cli.replay import estimates_table, replay
