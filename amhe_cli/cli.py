@@ -1,4 +1,4 @@
-"""The ``amhe`` command line: identify, probe (and, later, mhe-replay, run).
+"""The ``amhe`` command line: identify, probe, mhe-replay, run, evaluate.
 
 Every user-facing problem raises :class:`~amhe_cli.errors.AmheError`; :func:`main`
 prints it as one line ``amhe: error: …`` on stderr and exits with status 2,
@@ -500,6 +500,125 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
                    f"lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
     click.echo(f"estimates written to {out_path}" + (f", {mcap_path}" if mcap_path else "")
                + (f"; plot to {plot_path}" if plot_path else ""))
+
+
+# -- run / evaluate --------------------------------------------------------------
+
+def _load_belief(path: str | None) -> Belief | None:
+    return None if path is None else Belief.load(path)
+
+
+@cli.command("run")
+@click.option("--task", "task_name", default="t1", show_default=True, help="Task t1..t5 (DESIGN.md §6).")
+@click.option("--target", type=click.Choice(["sim", "go1"]), default="sim", show_default=True,
+              help="Plant: the MuJoCo sim (a real Go1 is not supported by this version).")
+@click.option("--mode", type=click.Choice(["true", "baseline", "adaptive"]), default="adaptive", show_default=True,
+              help="Planner's parameters: the truth, a fixed belief, or the belief re-estimated online by the MHE.")
+@click.option("--belief", default=None, type=click.Path(), help="Starting belief YAML (default: probe in sim first).")
+@click.option("--config", default=None, type=click.Path(), help="YAML: planner, weights, mhe, kp, kd, cycle, task overrides.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--duration", default=None, type=float, help="Time limit [s] (default: the task's).")
+@click.option("--realtime", is_flag=True, help="Run the plant on the wall clock (default: lock-step).")
+@click.option("--out", default=None, type=click.Path(), help="MCAP to record (default: run_<task>_<mode>_s<seed>.mcap).")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--plot", type=click.Path(), default=None, help="PNG: box path vs goal, speed tracking, estimates vs truth.")
+@click.option("--json", "as_json", is_flag=True, help="Print only {success, e_g, J, t_exec, rmse} as JSON.")
+@click.option("--threads", default=None, type=int, help="Planner rollout threads (default: all CPUs).")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, out, force, plot, as_json, threads, quiet):
+    """Push a box with the adaptive sampling MPC (MPOPI + online MHE) in the sim plant."""
+    from .closed_loop import run_task, save_run
+    from .evaluate import load_config, probe_belief, run_settings
+    from .plot import check_plot_path, plot_run
+
+    if target != "sim":
+        raise AmheError("--target go1: driving a real Go1 is not supported by this version; use --target sim")
+    task, settings = run_settings(task_name, mode, load_config(config), seed=seed, realtime=realtime,
+                                  threads=threads, duration=duration)
+    out_path = _out_path(out or f"run_{task.name}_{mode}_s{seed}.mcap", f"run_{task.name}", ".mcap", force)
+    plot_path = check_plot_path(plot)
+    start = _load_belief(belief)
+    if start is None and mode != "true":
+        if not (quiet or as_json):
+            click.echo("no --belief: probing in the sim with the task's starting box first", err=True)
+        bar = _progress(40, "probe+identify", quiet or as_json)
+        try:
+            start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))
+        finally:
+            bar.close()
+        if not (quiet or as_json):
+            click.echo("starting belief: " + ", ".join(f"{k} {_fmt(v)}" for k, v in start.values.items()
+                                                      if k in ("box_mass", "box_friction")), err=True)
+    bar = _progress(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
+    try:
+        result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n))
+    finally:
+        bar.close()
+    save_run(result, out_path, task, settings, overwrite=force)
+    if plot_path is not None:
+        plot_run(plot_path, result, task)
+    for m in result.messages:
+        if "MHE" in m or "fell" in m:
+            click.echo(f"amhe: warning: {m}", err=True)
+    if as_json:
+        click.echo(json.dumps(result.metrics()))
+        return
+    click.echo(f"{task.name} {mode} seed {seed}: {'success' if result.success else 'failure'}"
+               f"{' (the robot fell)' if result.fell else ''}")
+    click.echo(f"  e_g {result.e_g:.3f} m   J {result.J:.3f}   t_exec {result.t_exec:.1f} s   "
+               f"speed RMSE {result.rmse:.3f} m/s   control {result.control_hz:.1f} Hz")
+    click.echo(f"recorded {out_path}" + (f", plot {plot_path}" if plot_path else ""))
+
+
+@cli.command("evaluate")
+@click.option("--task", "task_name", default="t4", show_default=True)
+@click.option("--seeds", default=15, show_default=True, type=int)
+@click.option("--modes", default="true,baseline,adaptive", show_default=True)
+@click.option("--belief", default=None, type=click.Path(), help="Starting belief of baseline/adaptive (default: probe in sim once).")
+@click.option("--config", default=None, type=click.Path(), help="Run config YAML (as for run).")
+@click.option("--duration", default=None, type=float, help="Time limit per run [s].")
+@click.option("--workers", default=None, type=int, help="Worker processes (default: all CPUs).")
+@click.option("--out", default=None, type=click.Path(), help="CSV of per-run rows (default: evaluate_<task>.csv).")
+@click.option("--force", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the summary table as JSON.")
+@click.option("--quiet", "-q", is_flag=True)
+def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out, force, as_json, quiet):
+    """Run modes × seeds of a task in parallel and print the paper's Table I layout."""
+    from .evaluate import evaluate, load_config, probe_belief, run_settings, summarise
+
+    mode_list = [m.strip() for m in modes.split(",") if m.strip()]
+    if seeds < 1:
+        raise AmheError(f"--seeds {seeds}: expected at least 1")
+    cfg = load_config(config)
+    task, _ = run_settings(task_name, mode_list[0] if mode_list else "true", cfg, duration=duration)
+    out_path = _out_path(out or f"evaluate_{task.name}.csv", f"evaluate_{task.name}", ".csv", force)
+    start = _load_belief(belief)
+    if start is None and set(mode_list) - {"true"}:
+        if not (quiet or as_json):
+            click.echo("no --belief: probing in the sim once for the baseline/adaptive starting belief", err=True)
+        start = probe_belief(task, seed=0)
+    bar = _progress(seeds * len(mode_list), f"evaluate {task.name}", quiet or as_json, counter="{n_fmt}/{total_fmt} runs")
+    try:
+        rows = evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=lambda r: bar.update(1))
+    finally:
+        bar.close()
+    keys = ["task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz"]
+    with open(out_path, "w", newline="") as fh:
+        w = csv_writer(fh)
+        w.writerow(keys)
+        w.writerows([[r[k] for k in keys] for r in rows])
+    table = summarise(rows, mode_list)
+    if as_json:
+        click.echo(json.dumps({"task": task.name, "seeds": seeds, "rows": table, "csv": str(out_path)}))
+        return
+    click.echo(f"{task.name}, {seeds} seed(s) per mode (mean ± std)")
+    click.echo(f"{'mode':>10}  {'S_R %':>6}  {'e_g [m]':>15}  {'J':>15}  {'t_exec [s]':>15}")
+    for r in table:
+        click.echo(f"{r['mode']:>10}  {r['S_R']:6.1f}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
+                   f"{r['J'][0]:7.2f} ± {r['J'][1]:5.2f}  {r['t_exec'][0]:7.1f} ± {r['t_exec'][1]:5.1f}")
+    click.echo(f"per-run rows: {out_path}")
+
+
 
 
 def parse_smooth(text: str) -> int | str:

@@ -77,32 +77,34 @@ class SimPlant:
         self.truth_values = space.values(space.mean0)
         space.write(self.model, space.mean0)
 
-    def trajectory(self) -> Trajectory:
-        """Everything recorded since :meth:`reset`, as a :class:`Trajectory` on ``record_dt``.
+    def trajectory(self, last: float | None = None) -> Trajectory:
+        """Everything recorded since :meth:`reset` (or its ``last`` seconds), as a :class:`Trajectory` on ``record_dt``.
 
         ``meta['truth']`` holds the true parameters at the reset, and
         ``meta['truth_series']`` ``{"t", "box_mass", "box_friction"}`` (T,) arrays
         of the truth at every sample, task events included.
         """
         s = self.scene
-        qpos = np.array(self._log["qpos"])
-        qvel = np.array(self._log["qvel"])
-        t = np.array(self._log["t"])
+        k = 0 if last is None else max(0, len(self._log["t"]) - int(round(last / self.record_dt)))
+        log = {key: v[k:] for key, v in self._log.items()}
+        qpos = np.array(log["qpos"])
+        qvel = np.array(log["qvel"])
+        t = np.array(log["t"])
         n = len(t)
         return Trajectory(
-            t=t - (t[0] if n else 0.0), dt=self.record_dt,
+            t=t, dt=self.record_dt,
             base_pos=qpos[:, s.base_qpos[:3]], base_quat=qpos[:, s.base_qpos[3:]],
             base_linvel=qvel[:, s.base_qvel[:3]], base_angvel=qvel[:, s.base_qvel[3:]],
             joint_pos=qpos[:, s.joint_qpos], joint_vel=qvel[:, s.joint_qvel],
             box_pos=qpos[:, s.box_qpos[:3]], box_quat=qpos[:, s.box_qpos[3:]],
             box_linvel=qvel[:, s.box_qvel[:3]], box_angvel=qvel[:, s.box_qvel[3:]],
-            ctrl=np.array(self._log["ctrl"]),
+            ctrl=np.array(log["ctrl"]),
             kp=self.model.actuator_gainprm[:, 0].copy(), kd=-self.model.actuator_biasprm[:, 2].copy(),
             observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": True, "joint_states": True, "box": True},
             meta={"source": "sim", "truth": to_plain(self._truth_at_reset),
-                  "truth_series": {"t": t - (t[0] if n else 0.0), "box_mass": np.array(self._log["mass"]),
-                                   "box_friction": np.array(self._log["friction"])},
+                  "truth_series": {"t": t, "box_mass": np.array(log["mass"]),
+                                   "box_friction": np.array(log["friction"])},
                   "scene": self.config.to_dict()},
         )
 

@@ -134,3 +134,51 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_run(path, result, task) -> Path:
+    """A closed-loop run: box path vs goal/path, speed tracking, estimates vs truth.
+
+    Args:
+        path: PNG to write.
+        result: :class:`~amhe_cli.closed_loop.RunResult`.
+        task: the :class:`~amhe_cli.tasks.Task` it ran.
+    """
+    path = _check_png(path)
+    fig, ax = plt.subplots(1, 4, figsize=(17, 4))
+    traj = result.traj
+    ax[0].plot(traj.box_pos[:, 0], traj.box_pos[:, 1], label="box")
+    ax[0].plot(traj.base_pos[:, 0], traj.base_pos[:, 1], lw=0.8, label="robot base")
+    if task.circle is not None:
+        cx, cy, r, arc = task.circle
+        a0 = np.arctan2(task.box_start[1] - cy, task.box_start[0] - cx)
+        a = a0 + np.linspace(0, arc, 100)
+        ax[0].plot(cx + r * np.cos(a), cy + r * np.sin(a), "k:", label="path")
+    ax[0].plot(*task.goal, "k*", ms=12, label="goal")
+    ax[0].add_patch(plt.Circle(task.goal, task.success_radius, fill=False, ls="--", color="k"))
+    ax[0].set_aspect("equal", adjustable="datalim")
+    ax[0].set_xlabel("x [m]"), ax[0].set_ylabel("y [m]"), ax[0].legend(fontsize=7)
+    ax[0].set_title(f"{task.name}: e_g {result.e_g:.3f} m, {'success' if result.success else 'failure'}")
+    t_cyc = result.box_path[:, 0]
+    ax[1].plot(t_cyc, result.speed[:, 0], lw=0.8, label="forward speed")
+    ax[1].plot(t_cyc, result.speed[:, 1], "k--", label="commanded")
+    ax[1].set_xlabel("t [s]"), ax[1].set_ylabel("m/s"), ax[1].legend(fontsize=7)
+    ax[1].set_title(f"speed tracking, RMSE {result.rmse:.3f} m/s")
+    est_t, est_v, est_s = result.estimates
+    ts = traj.meta.get("truth_series", {})
+    for k, (name, unit) in enumerate((("box_mass", "kg"), ("box_friction", "-"))):
+        a = ax[2 + k]
+        if name in result.labels:
+            i = result.labels.index(name)
+            tt = np.append(est_t, traj.t[-1])
+            vv = np.append(est_v[:, i], est_v[-1, i])
+            ss = np.append(est_s[:, i], est_s[-1, i])
+            a.step(tt, vv, where="post", label="planner's belief")
+            a.fill_between(tt, vv - ss, vv + ss, step="post", alpha=0.25)
+        if name in ts:
+            a.plot(ts["t"], ts[name], "k--", label="truth")
+        a.set_xlabel("t [s]"), a.set_ylabel(f"{name} [{unit}]"), a.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

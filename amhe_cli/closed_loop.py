@@ -1,0 +1,406 @@
+"""The closed loop of the paper's Algorithm 1: plant, MPOPI planner and the MHE thread.
+
+:func:`run_task` runs one task in the sim plant:
+
+* the **plant** (:class:`~amhe_cli.plant.SimPlant`) is its own MuJoCo model with
+  the true parameters and a 2 ms step; task events act on it only;
+* the **planner** (:class:`~amhe_cli.planner.Planner`) has its own model at a
+  10 ms step and sees the plant only through its measured state;
+* the **estimator** (:class:`EstimatorThread`) runs the MHE of ``mhe-replay``
+  in a thread of its own over the plant's recording and swaps each new estimate
+  into the planner between cycles, never blocking it.
+
+Modes differ only in the planner's parameters: ``true`` gets the plant's truth
+(and every change of it), ``baseline`` a fixed belief, ``adaptive`` the same
+belief and then the MHE's estimates.
+
+Timing: by default the plant waits for the planner (lock-step; reproducible for a
+seed — the MHE's update for the window ending at ``t`` is applied at
+``t + every`` in plant time, the thread computing it meanwhile). With
+``realtime`` the plant runs on for as long as each planner cycle took (with the
+previous plan's later targets, as a real robot would), and an estimate is used
+as soon as the thread has it; an update due while the last one still runs is
+skipped and logged.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+
+from .belief import Belief
+from .errors import AmheError
+from .mhe import MHESettings, MovingHorizonEstimator, Update
+from .params import ParameterSpace
+from .plant import SimPlant
+from .planner import Planner, PlannerSettings, planner_scene
+from .scene import Scene, SceneConfig
+from .tasks import Task
+from .trajectory import Trajectory
+
+MODES = ("true", "baseline", "adaptive")
+#: Parameters a belief gives the planner and the MHE estimates.
+RUN_PARAMS = ("box_mass", "box_inertia", "box_friction")
+#: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
+TASK_BOX_SIZE = (0.38, 0.38, 0.38)
+
+
+class EstimatorThread:
+    """The MHE in a background thread: submit a window, collect the estimate later.
+
+    Args:
+        mhe: the estimator (its own rollout pool).
+
+    An exception inside an update is caught: the last good estimate stays, and
+    :attr:`errors` records it. The controller is never blocked unless it asks
+    to :meth:`wait` (lock-step).
+    """
+
+    def __init__(self, mhe: MovingHorizonEstimator):
+        self.mhe = mhe
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._result: Update | None = None
+        self.errors: list[str] = []
+
+    @property
+    def busy(self) -> bool:
+        return self._thread is not None and self._thread.is_alive()
+
+    def submit(self, traj: Trajectory, t: float) -> bool:
+        """Start an update over ``traj`` up to ``t`` [s]; False (nothing started) while one still runs."""
+        if self.busy:
+            return False
+
+        def work():
+            try:
+                res = self.mhe.update(traj, t)
+            except Exception as exc:  # noqa: BLE001 - the controller must survive any estimator failure
+                with self._lock:
+                    self.errors.append(f"t={t:.2f} s: MHE update failed ({type(exc).__name__}: {exc}); "
+                                       "keeping the last estimate")
+                return
+            with self._lock:
+                self._result = res
+
+        self._thread = threading.Thread(target=work, name="amhe-mhe", daemon=True)
+        self._thread.start()
+        return True
+
+    def take_errors(self) -> list[str]:
+        """Errors recorded since the last call."""
+        with self._lock:
+            out, self.errors = self.errors, []
+        return out
+
+    def poll(self, wait: bool = False) -> Update | None:
+        """The finished update not yet collected (None if none); ``wait`` blocks until the running one ends."""
+        if wait and self._thread is not None:
+            self._thread.join()
+        with self._lock:
+            res, self._result = self._result, None
+        return res
+
+    def close(self) -> None:
+        if self._thread is not None:
+            self._thread.join()
+        self.mhe.close()
+
+
+@dataclass
+class RunSettings:
+    """Settings of one closed-loop run.
+
+    Attributes:
+        mode: ``true``, ``baseline`` or ``adaptive``.
+        realtime: run the plant on the wall clock (see module docstring).
+        planner: :class:`~amhe_cli.planner.PlannerSettings`.
+        mhe: :class:`~amhe_cli.mhe.MHESettings` of the estimator thread.
+        cycle: plant time per planner cycle in lock-step [s] (multiple of the
+            planner's dt); in realtime mode the planner's own compute time.
+        seed: seeds the planner's and the estimator's sampling.
+        threads: rollout threads of the planner (the MHE uses one).
+        kp, kd: joint PD gains of the position servos [N·m/rad], [N·m·s/rad],
+            the same in plant and planner (they are the controller's command
+            interface, not a plant secret). 100/4 by measurement: with the
+            public 55/3 a trot reference barely lifts the feet (1.6 cm of 5)
+            and does not move the base open-loop; T1 runs with 55/3 fell in
+            3 of 4 tries, with 100/4 (and the default weights) in 1 of 2.
+    """
+
+    mode: str = "adaptive"
+    realtime: bool = False
+    planner: PlannerSettings = field(default_factory=PlannerSettings)
+    mhe: MHESettings = field(default_factory=MHESettings)
+    cycle: float = 0.02
+    seed: int = 0
+    threads: int | None = None
+    kp: float = 100.0
+    kd: float = 4.0
+
+    def check(self) -> None:
+        if self.mode not in MODES:
+            raise AmheError(f"unknown mode {self.mode!r}: expected one of {', '.join(MODES)}")
+        self.planner.check()
+        self.mhe.check()
+        if self.cycle < self.planner.dt - 1e-12:
+            raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
+
+
+@dataclass
+class RunResult:
+    """Outcome of one run (paper §V metrics).
+
+    Attributes:
+        success: the box ended within ``task.success_radius`` of the goal and the robot never fell.
+        e_g: final goal error [m].
+        J: mean task running cost of the executed trajectory, per control cycle.
+        t_exec: time until the box reached ``task.goal_tol`` of the goal, else the run's length [s].
+        rmse: RMS error of the base's forward speed to the commanded speed [m/s].
+        fell: the base dropped below ``task.fall_height``.
+        control_hz: planner cycles per wall-clock second.
+        traj: the plant's recording (2 ms grid), truth series in ``meta``.
+        estimates: (t [s], (n, d) physical values, (n, d) std) of the planner's
+            parameters each time they changed (t = plant time of the swap).
+        labels: (d,) labels of the estimate columns.
+        messages: what went wrong along the way (estimator failures, skipped updates).
+    """
+
+    success: bool
+    e_g: float
+    J: float
+    t_exec: float
+    rmse: float
+    fell: bool
+    control_hz: float
+    traj: Trajectory
+    estimates: tuple
+    labels: list
+    messages: list = field(default_factory=list)
+    box_path: np.ndarray | None = None
+    speed: np.ndarray | None = None
+
+    def metrics(self) -> dict:
+        """The JSON object ``amhe run --json`` prints."""
+        return {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
+                "rmse": self.rmse}
+
+
+def task_scene_config(task: Task, dt: float, kp: float = 55.0, kd: float = 3.0) -> SceneConfig:
+    """Scene of a task at timestep ``dt``: uniform floor, the task's box (nominal mass from its truth), PD gains."""
+    return SceneConfig(box_size=TASK_BOX_SIZE, box_mass=float(task.truth.get("box_mass", 3.7)), timestep=dt,
+                       kp=(float(kp),) * 12, kd=(float(kd),) * 12)
+
+
+def _belief_std(belief: Belief | None) -> dict | None:
+    return None if belief is None else {k: v for k, v in belief.std.items() if v and k in RUN_PARAMS}
+
+
+def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
+                 truth: dict) -> tuple[Planner, ParameterSpace]:
+    """The planner of a run and its parameter space.
+
+    The planner's scene is the task's nominal scene at the planner's timestep;
+    only its parameters depend on the mode: the plant's ``truth`` for ``true``,
+    the belief's values otherwise. Nothing of the plant's model is passed.
+
+    Raises:
+        AmheError: a mode other than ``true`` without a belief.
+    """
+    s = settings
+    if s.mode != "true" and belief is None:
+        raise AmheError(f"mode {s.mode} needs a starting belief (--belief, or let run probe first)")
+    pscene = planner_scene(task_scene_config(task, s.planner.dt, s.kp, s.kd), s.planner.dt)
+    prior = {k: v for k, v in (truth if s.mode == "true" else belief.values).items() if k in RUN_PARAMS}
+    space = ParameterSpace(pscene, free=RUN_PARAMS, prior=prior,
+                           prior_std=None if s.mode == "true" else _belief_std(belief))
+    return Planner(pscene, space, task, s.planner, nthread=s.threads, seed=s.seed), space
+
+
+def _yaw(q: np.ndarray) -> float:
+    w, x, y, z = q
+    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+
+
+def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
+             progress: Callable[[float], None] | None = None) -> RunResult:
+    """Run ``task`` in the sim plant with the planner in ``settings.mode``.
+
+    Args:
+        task: the task (start, goal, truth, events).
+        belief: starting belief of ``baseline``/``adaptive`` (ignored by ``true``).
+        settings: :class:`RunSettings`.
+        progress: called with the plant time [s] after every cycle.
+    Returns:
+        :class:`RunResult`.
+    Raises:
+        AmheError: bad settings, or a belief missing for a mode that needs one.
+    """
+    s = settings or RunSettings()
+    s.check()
+    pdt = s.planner.dt
+    plant = SimPlant(task_scene_config(task, 0.002, s.kp, s.kd), truth=task.truth, record_dt=0.002, control_period=pdt)
+    qpos, qvel = plant.scene.standing_state(box_xy=task.box_start)
+    plant.reset(qpos, qvel)
+
+    planner, space = make_planner(task, s, belief, plant.truth_values)
+    estimator = None
+    if s.mode == "adaptive":
+        mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
+        mspace = ParameterSpace(mscene, free=RUN_PARAMS, prior=space.values(space.mean0), prior_std=_belief_std(belief))
+        mhe_settings = replace(s.mhe, seed=s.seed)
+        estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
+    pscene = planner.scene
+    messages: list[str] = []
+    v0, sd0 = space.physical(space.mean0, space.std0)
+    est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
+
+    def swap(values: np.ndarray, std: np.ndarray, t: float) -> None:
+        planner.set_params(values)
+        v, sd = space.physical(values, std)
+        est_t.append(t), est_v.append(v), est_s.append(sd)
+
+    half_depth = TASK_BOX_SIZE[0] / 2
+    sc = plant.scene
+    cycle_steps = max(1, int(round(s.cycle / pdt)))
+    next_update = s.mhe.window
+    pending = False
+    plans, wall0 = 0, time.perf_counter()
+    fell, t_reach = False, None
+    costs, speeds, cmd_speeds, box_path = [], [], [], []
+    pending_events = list(task.events)
+    plan = None
+    try:
+        while plant.data.time < task.duration - 1e-9:
+            t = float(plant.data.time)
+            q, v = plant.data.qpos.copy(), plant.data.qvel.copy()
+            box_xy = q[sc.box_qpos[:2]]
+            cmd = task.command(q[sc.base_qpos[:2]], _yaw(q[sc.base_qpos[3:]]), box_xy, half_depth)
+            state = pscene.full_state(q[None], v[None])[0]
+            prev = plan
+            plan = planner.plan(state, t, cmd)
+            plans += 1
+            # executed-trajectory metrics at the cycle start
+            head = np.array([np.cos(_yaw(q[sc.base_qpos[3:]])), np.sin(_yaw(q[sc.base_qpos[3:]]))])
+            speeds.append(float(v[sc.base_qvel[:2]] @ head))
+            cmd_speeds.append(cmd["speed"])
+            box_path.append([t, *box_xy])
+            ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"])
+            costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
+                                               v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd)))
+            if s.realtime:
+                lag = int(np.ceil(plan.compute_time / pdt))
+                rows = [prev.controls[min(i + cycle_steps, len(prev.controls) - 1)] for i in range(lag)] \
+                    if prev is not None else [plan.controls[0]] * lag
+                rows += [plan.controls[min(lag, len(plan.controls) - 1)]]
+            else:
+                rows = plan.controls[:cycle_steps]
+            for row in rows:
+                plant.step(row)
+                bx = float(plant.data.qpos[sc.box_qpos[0]])
+                for ev in list(pending_events):
+                    if ev.due(float(plant.data.time), bx):
+                        plant.set_param(ev.param, ev.value)
+                        pending_events.remove(ev)
+                        messages.append(f"t={plant.data.time:.2f} s: plant event {ev.param} -> {ev.value}")
+                        if s.mode == "true":
+                            swap(space.vector(plant.truth_values), space.std0 * 0, float(plant.data.time))
+            now = float(plant.data.time)
+            if plant.data.qpos[sc.base_qpos[2]] < task.fall_height:
+                fell = True
+                messages.append(f"t={now:.2f} s: the robot fell (base at {plant.data.qpos[sc.base_qpos[2]]:.3f} m)")
+                break
+            if task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol and task.circle is None:
+                t_reach = now
+                break
+            if task.circle is not None and task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
+                t_reach = now
+                break
+            if estimator is not None:
+                res = estimator.poll(wait=not s.realtime and pending and now >= next_update - 1e-9)
+                if res is not None:
+                    pending = False
+                    if not res.skipped:
+                        swap(res.mean, res.std, now)
+                messages += estimator.take_errors()
+                if now >= next_update - 1e-9:
+                    if estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
+                        pending = True
+                    else:
+                        messages.append(f"t={now:.2f} s: MHE update skipped, the last one is still running")
+                    next_update += s.mhe.every
+            if progress is not None:
+                progress(now)
+    finally:
+        wall = time.perf_counter() - wall0
+        planner.close()
+        if estimator is not None:
+            estimator.close()
+    traj = plant.trajectory()
+    box_final = traj.box_pos[-1, :2]
+    e_g = task.goal_error(box_final)
+    speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)
+    return RunResult(
+        success=bool(e_g <= task.success_radius and not fell), e_g=e_g, J=float(np.mean(costs)),
+        t_exec=float(t_reach if t_reach is not None else traj.t[-1]),
+        rmse=float(np.sqrt(np.mean((speeds - cmd_speeds) ** 2))), fell=fell,
+        control_hz=plans / wall if wall > 0 else float("nan"), traj=traj,
+        estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
+        messages=messages, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
+    )
+
+
+def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwrite: bool = False,
+             extra_meta: dict | None = None):
+    """Write a run as an MCAP in the project schema, plus ``<stem>.truth.csv`` beside it.
+
+    The MCAP holds the plant's recording (so ``identify`` and ``mhe-replay``
+    read it back), the planner's parameters on ``/amhe/estimate``, the truth at
+    the start (``amhe_truth`` metadata), the run settings and metrics
+    (``amhe_run``) and what went wrong along the way (``amhe_run_log``). The CSV
+    holds the truth over time in the shared logs' columns (``t``,
+    ``box_mass_kg``, ``mu_floor_at_box_center``).
+
+    Returns:
+        (mcap path, csv path).
+    Raises:
+        AmheError: a file exists and ``overwrite`` is False.
+    """
+    import csv
+    import json
+    from pathlib import Path
+
+    from .io.writer import write_mcap
+    from .probe import TRUTH_RECORD
+    from .belief import to_plain
+
+    path = Path(path)
+    csv_path = path.with_name(path.name.split(".mcap")[0] + ".truth.csv")
+    if csv_path.exists() and not overwrite:
+        raise AmheError(f"{csv_path} exists: pass --force to overwrite it")
+    est_t, est_v, est_s = result.estimates
+    labels = [x for lab in result.labels for x in (lab, f"{lab}_std")]
+    values = np.stack([np.stack([est_v[:, i], est_s[:, i]], axis=1) for i in range(est_v.shape[1])], axis=1)
+    meta = {
+        TRUTH_RECORD: {k: json.dumps(to_plain(v)) for k, v in result.traj.meta["truth"].items()},
+        "amhe_run": {"task": json.dumps(to_plain(task.to_dict())), "mode": settings.mode, "seed": str(settings.seed),
+                     "realtime": str(settings.realtime), "planner": json.dumps(settings.planner.to_dict()),
+                     "mhe": json.dumps(to_plain(settings.mhe.to_dict())), "kp": str(settings.kp), "kd": str(settings.kd),
+                     "metrics": json.dumps(result.metrics()), "control_hz": str(result.control_hz),
+                     **{k: str(v) for k, v in (extra_meta or {}).items()}},
+        "amhe_run_log": {f"{i:04d}": m for i, m in enumerate(result.messages)},
+    }
+    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite,
+               extra=[("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)])
+    ts = result.traj.meta["truth_series"]
+    with csv_path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "box_mass_kg", "mu_floor_at_box_center"])
+        step = max(1, int(round(0.01 / result.traj.dt)))
+        for i in range(0, len(ts["t"]), step):
+            w.writerow([f"{ts['t'][i]:.4f}", f"{ts['box_mass'][i]:.6g}", f"{ts['box_friction'][i]:.6g}"])
+    return path, csv_path

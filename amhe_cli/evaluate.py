@@ -1,0 +1,155 @@
+"""Run configuration, the probing belief, and the evaluation grid (paper §V, Table I).
+
+* :func:`run_settings` builds :class:`~amhe_cli.closed_loop.RunSettings` and the
+  task from a YAML config (``planner:``, ``weights:``, ``mhe:``, ``kp``, ``kd``,
+  ``cycle``, ``task:`` overrides such as ``duration``);
+* :func:`probe_belief` is what ``run`` does without ``--belief``: the lunge probe
+  in the sim plant with the task's starting truth, then ``identify``;
+* :func:`evaluate` runs tasks × modes × seeds in worker processes and
+  :func:`summarise` gives the mean ± std table of S_R, e_g, J, t_exec.
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .belief import Belief, to_plain
+from .closed_loop import MODES, RUN_PARAMS, RunSettings, run_task
+from .errors import AmheError
+from .mhe import MHESettings
+from .planner import PlannerSettings
+from .tasks import CostWeights, Task, get_task
+
+CONFIG_KEYS = {"planner", "weights", "mhe", "kp", "kd", "cycle", "task"}
+
+
+def load_config(path: str | os.PathLike | None) -> dict:
+    """A run config YAML as a dict ({} for None).
+
+    Raises:
+        AmheError: unreadable file, not a mapping, or unknown top-level keys.
+    """
+    if path is None:
+        return {}
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except OSError as e:
+        raise AmheError(f"--config {path}: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise AmheError(f"--config {path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise AmheError(f"--config {path}: expected a mapping of {', '.join(sorted(CONFIG_KEYS))}")
+    bad = set(data) - CONFIG_KEYS
+    if bad:
+        raise AmheError(f"--config {path}: unknown key {', '.join(sorted(bad))}; expected {', '.join(sorted(CONFIG_KEYS))}")
+    return data
+
+
+def run_settings(task_name: str, mode: str, config: dict | None = None, seed: int = 0, realtime: bool = False,
+                 threads: int | None = None, duration: float | None = None) -> tuple[Task, RunSettings]:
+    """The task and settings of one run from a config dict (see :func:`load_config`).
+
+    Raises:
+        AmheError: unknown task, mode, setting or weight name.
+    """
+    config = config or {}
+    overrides = dict(config.get("task") or {})
+    if duration is not None:
+        overrides["duration"] = duration
+    known = set(Task.__dataclass_fields__) - {"name", "weights", "events"}
+    bad = set(overrides) - known
+    if bad:
+        raise AmheError(f"unknown task setting {', '.join(sorted(bad))}: expected one of {', '.join(sorted(known))}")
+    if "duration" in overrides and not float(overrides["duration"]) > 0:
+        raise AmheError(f"--duration {overrides['duration']}: expected a positive number of seconds")
+    task = get_task(task_name, weights=CostWeights.from_dict(config.get("weights") or {}), **overrides)
+    mhe = config.get("mhe") or {}
+    bad = set(mhe) - set(MHESettings.__dataclass_fields__)
+    if bad:
+        raise AmheError(f"unknown mhe setting {', '.join(sorted(bad))}")
+    settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(config.get("planner") or {}),
+                           mhe=MHESettings(**mhe), seed=seed, threads=threads,
+                           **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config})
+    settings.check()
+    return task, settings
+
+
+def probe_belief(task: Task, seed: int = 0, threads: int | None = None, progress=None) -> Belief:
+    """Probe in the sim plant with the task's starting truth and identify: the Adaptive-MHE starting belief.
+
+    The probe is the lunge manoeuvre of ``amhe probe --target sim`` with the
+    task's box; the identification uses the defaults of ``amhe identify``.
+    """
+    from .identify import IdentifySettings, identify
+    from .params import ParameterSpace
+    from .probe import simulate_probe
+    from .scene import Scene, infer_scene_config
+    from .closed_loop import task_scene_config
+
+    cfg = task_scene_config(task, 0.002)
+    traj = simulate_probe(task.truth, config=replace(cfg, kp=None, kd=None), seed=seed)
+    scene_cfg = infer_scene_config(traj, box_size=cfg.box_size)
+    scene = Scene(scene_cfg)
+    space = ParameterSpace(scene, free=RUN_PARAMS)
+    res = identify(traj, scene, space, IdentifySettings(seed=seed), progress=progress, nthread=threads)
+    summary = res.summary()
+    return Belief(values=to_plain(space.values(res.estimate)), std=summary["std"], free=list(RUN_PARAMS),
+                  labels=summary["labels"], correlation=summary["correlation"], cost=summary["cost"],
+                  scene=scene_cfg.to_dict(),
+                  provenance={"command": "run (probe in sim, then identify)", "seed": seed,
+                              "truth": to_plain(dict(task.truth))})
+
+
+def _one(args) -> dict:
+    task_name, mode, seed, config, belief_dict, duration = args
+    task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
+    belief = Belief(**belief_dict) if belief_dict else None
+    r = run_task(task, belief, settings)
+    return {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "fell": r.fell,
+            "control_hz": r.control_hz}
+
+
+def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: dict | None = None,
+             workers: int | None = None, duration: float | None = None, progress=None) -> list[dict]:
+    """Run every mode × seed of a task in worker processes (one rollout thread each).
+
+    Returns:
+        one dict per run: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz.
+    Raises:
+        AmheError: unknown mode, or modes needing a belief without one.
+    """
+    bad = set(modes) - set(MODES)
+    if bad:
+        raise AmheError(f"unknown mode {', '.join(sorted(bad))}: expected some of {', '.join(MODES)}")
+    if belief is None and set(modes) - {"true"}:
+        raise AmheError("baseline and adaptive modes need a belief")
+    run_settings(task_name, modes[0], config, duration=duration)  # validate before forking
+    jobs = [(task_name, m, s, config, belief.__dict__ if belief else None, duration) for s in range(seeds) for m in modes]
+    rows = []
+    with ProcessPoolExecutor(max_workers=workers or os.cpu_count()) as pool:
+        for row in pool.map(_one, jobs):
+            rows.append(row)
+            if progress is not None:
+                progress(row)
+    return rows
+
+
+def summarise(rows: list[dict], modes) -> list[dict]:
+    """Per mode: n, S_R [%], and mean ± std of e_g, J, t_exec, rmse (the paper's Table I)."""
+    out = []
+    for m in modes:
+        sel = [r for r in rows if r["mode"] == m]
+        if not sel:
+            continue
+        row = {"mode": m, "n": len(sel), "S_R": 100.0 * float(np.mean([r["success"] for r in sel]))}
+        for k in ("e_g", "J", "t_exec", "rmse"):
+            v = np.array([r[k] for r in sel], dtype=float)
+            row[k] = (float(v.mean()), float(v.std()))
+        out.append(row)
+    return out

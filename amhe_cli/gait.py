@@ -1,0 +1,116 @@
+"""Gait references: joint-position targets and contact schedules over a gait cycle.
+
+The planner (:mod:`~amhe_cli.planner`) samples joint targets *around* a gait
+reference, so the reference only has to be a plausible periodic motion for a
+commanded base velocity; balance and steering come from the sampling. A
+:class:`Gait` generates it from foot trajectories in each hip's sagittal plane
+through the leg inverse kinematics of :mod:`~amhe_cli.maneuver`:
+
+* stance: the foot slides backward under the hip at the commanded speed,
+  covering the step length ``L = v · duty · period``;
+* swing: the foot returns forward on a cycloid and lifts by ``step_height``.
+
+Three gaits cover the tasks (DESIGN.md §6): ``trot`` (diagonal pairs, T1–T4),
+``stand`` (all feet planted) and ``tripod`` (front-right foot free for a
+one-leg push, T5: that leg's reference is a raised, forward-reaching pose and
+the planner moves it freely).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .maneuver import leg_ik
+from .scene import STAND_JOINTS
+
+#: Leg order of the joint vector (GO1_JOINTS): FR, FL, RR, RL.
+LEGS = ("FR", "FL", "RR", "RL")
+#: Lateral offset of each hip from the trunk's centre line [m] (+ = left).
+HIP_Y = np.array([-0.127, 0.127, -0.127, 0.127])
+#: Hip-to-foot height of the gait's stance legs [m]: 1.5 cm above the standing pose's
+#: 0.265, so that PD sag under the trunk's weight leaves the base near its standing height.
+STAND_HEIGHT = 0.28
+
+
+@dataclass(frozen=True)
+class Gait:
+    """A periodic gait.
+
+    Attributes:
+        name: ``trot``, ``stand`` or ``tripod``.
+        period: cycle time [s].
+        duty: fraction of the cycle each foot is in stance.
+        offsets: (4,) phase offset of each leg (FR, FL, RR, RL) in cycles.
+        step_height: swing-foot lift of the reference [m] (PD servos realise about half).
+        free_legs: legs not in the gait (tripod: the pushing leg), held at
+            ``free_pose`` and left to the planner; they never count as stance.
+        free_pose: (3,) hip/thigh/calf reference of a free leg [rad].
+    """
+
+    name: str = "trot"
+    period: float = 0.5
+    duty: float = 0.5
+    offsets: tuple = (0.0, 0.5, 0.5, 0.0)
+    step_height: float = 0.08
+    free_legs: tuple = ()
+    free_pose: tuple = (0.0, 0.3, -1.6)
+
+    @property
+    def walking(self) -> bool:
+        return self.duty < 1.0
+
+    def phase(self, t: np.ndarray | float) -> np.ndarray:
+        """(..., 4) phase of each leg in [0, 1) at time(s) ``t`` [s]."""
+        t = np.asarray(t, dtype=float)
+        return np.mod(t[..., None] / self.period + np.asarray(self.offsets), 1.0)
+
+    def contact(self, t: np.ndarray | float) -> np.ndarray:
+        """(..., 4) bool: which feet are in stance at ``t``."""
+        c = self.phase(t) < self.duty if self.walking else np.ones(np.shape(t) + (4,), bool)
+        for leg in self.free_legs:
+            c[..., LEGS.index(leg)] = False
+        return c
+
+    def mode(self, t: float) -> int:
+        """Index of the contact mode at ``t`` (a 4-bit stance pattern); a change is a mode switch."""
+        c = self.contact(t)
+        return int(np.dot(c.astype(int), [1, 2, 4, 8]))
+
+    def reference(self, t: np.ndarray | float, v: float = 0.0, omega: float = 0.0) -> np.ndarray:
+        """Joint-position reference at time(s) ``t``.
+
+        Args:
+            t: time(s) [s], scalar or (N,).
+            v: commanded forward speed of the base [m/s].
+            omega: commanded yaw rate [rad/s] (steers by unequal step lengths).
+        Returns:
+            (..., 12) joint targets [rad] in GO1_JOINTS order.
+        """
+        t = np.asarray(t, dtype=float)
+        out = np.broadcast_to(STAND_JOINTS, t.shape + (12,)).copy()
+        if self.walking:
+            ph = self.phase(t)
+            stance = ph < self.duty
+            s_st = ph / self.duty
+            s_sw = (ph - self.duty) / (1.0 - self.duty)
+            length = (v - omega * HIP_Y) * self.duty * self.period  # (4,) step length per leg
+            x = np.where(stance, length * (0.5 - s_st),
+                         length * (-0.5 + s_sw - np.sin(2 * np.pi * s_sw) / (2 * np.pi)))
+            lift = np.where(stance, 0.0, self.step_height * 0.5 * (1 - np.cos(2 * np.pi * s_sw)))
+            leg = leg_ik(-x, STAND_HEIGHT - lift)  # (..., 4, 2)
+            out[..., 1::3] = leg[..., 0]
+            out[..., 2::3] = leg[..., 1]
+        for name in self.free_legs:
+            i = LEGS.index(name)
+            out[..., 3 * i:3 * i + 3] = self.free_pose
+        return out
+
+
+#: The gaits by name.
+GAITS = {
+    "trot": Gait(),
+    "stand": Gait(name="stand", duty=1.0),
+    "tripod": Gait(name="tripod", duty=1.0, free_legs=("FR",)),
+}

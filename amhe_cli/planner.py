@@ -1,0 +1,291 @@
+"""MPOPI: sampling-based whole-body MPC over joint-position targets (paper §III-A, §IV-B).
+
+Each control cycle the planner
+
+1. shifts last cycle's mean to the new time (warm start),
+2. draws ``N`` sequences of joint-target *offsets* around the gait reference —
+   ``K`` spline knots per joint, interpolated by a natural cubic spline over the
+   horizon — and rolls them out under its own model ``f(p̂)`` through the shared
+   rollout pool (:class:`~amhe_cli.rollout.RolloutPool`),
+3. scores them with the task cost (:meth:`~amhe_cli.tasks.Task.stage_cost`),
+4. moves the mean by MPPI weighting; and **only when the gait's contact mode
+   changes** it first refines mean and σ over ``L_MPOPI`` loops of the elite
+   update shared with the MHE (:func:`~amhe_cli.sampling.gaussian_step`) — the
+   paper's cheaper MPOPI, the last distribution warm-starting the cycles in
+   between.
+
+The planner owns its model copies: :meth:`Planner.set_params` writes a new
+belief into them (the MHE thread's swap) and nothing else ever touches them; it
+never sees the plant's model.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import mujoco
+import numpy as np
+
+from .errors import AmheError
+from .gait import Gait
+from .params import ParameterSpace
+from .rollout import RolloutPool
+from .sampling import gaussian_step, mppi_weights
+from .scene import Scene
+from .tasks import Task
+
+
+@dataclass
+class PlannerSettings:
+    """MPOPI hyper-parameters (defaults: the public Go1 box-pushing MPPI, DESIGN.md §7).
+
+    Attributes:
+        dt: planner model timestep [s] (coarser than the plant's).
+        horizon: steps per rollout (40 × 10 ms = 0.4 s, most of a trot cycle).
+        samples: ``N`` rollouts per batch (sample 0 is the mean itself).
+        knots: spline knots per joint over the horizon.
+        temperature: MPPI ``λ`` on spread-normalised costs (:func:`~amhe_cli.sampling.mppi_weights`).
+        noise: σ of the knot offsets for (hip, thigh, calf) [rad].
+        refine_loops: ``L_MPOPI`` elite-update loops at a contact-mode switch.
+        refine_alpha: learning rate of those loops.
+        sigma_floor: σ never falls below this fraction of ``noise``, to avoid
+            collapse of the covariance during MPC.
+        sigma_ceiling: nor rises above this multiple of it.
+    """
+
+    dt: float = 0.01
+    horizon: int = 40
+    samples: int = 30
+    knots: int = 4
+    temperature: float = 0.12
+    noise: tuple = (0.06, 0.1, 0.1)
+    refine_loops: int = 3
+    refine_alpha: float = 0.5
+    sigma_floor: float = 0.3
+    sigma_ceiling: float = 2.0
+
+    def check(self) -> None:
+        """Raise :class:`AmheError` for settings that cannot work."""
+        if self.horizon < 2 or self.samples < 2 or not 2 <= self.knots <= self.horizon:
+            raise AmheError(f"planner horizon {self.horizon}, samples {self.samples}, knots {self.knots}: "
+                            "expected horizon >= 2, samples >= 2, 2 <= knots <= horizon")
+        if not self.dt > 0 or not self.temperature > 0:
+            raise AmheError(f"planner dt {self.dt} and temperature {self.temperature} must be positive")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PlannerSettings":
+        names = {f.name for f in fields(cls)}
+        bad = set(d) - names
+        if bad:
+            raise AmheError(f"unknown planner setting {', '.join(sorted(bad))}: expected one of {', '.join(sorted(names))}")
+        d = dict(d)
+        if "noise" in d:
+            d["noise"] = tuple(float(x) for x in d["noise"])
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def spline_basis(knot_t: np.ndarray, query_t: np.ndarray) -> np.ndarray:
+    """(Q, K) matrix mapping K knot values to a natural cubic spline at Q query times.
+
+    Queries outside the knots hold the end value. ``knot_t`` must be increasing.
+    """
+    knot_t = np.asarray(knot_t, dtype=float)
+    K = len(knot_t)
+    h = np.diff(knot_t)
+    # second derivatives M (natural: M_0 = M_{K-1} = 0) solve A M_inner = R y
+    A = np.zeros((K, K))
+    R = np.zeros((K, K))
+    A[0, 0] = A[-1, -1] = 1.0
+    for i in range(1, K - 1):
+        A[i, i - 1], A[i, i], A[i, i + 1] = h[i - 1], 2 * (h[i - 1] + h[i]), h[i]
+        R[i, i - 1], R[i, i], R[i, i + 1] = 6 / h[i - 1], -6 / h[i - 1] - 6 / h[i], 6 / h[i]
+    M = np.linalg.solve(A, R)  # (K, K): second derivatives per unit knot
+    q = np.clip(np.asarray(query_t, dtype=float), knot_t[0], knot_t[-1])
+    j = np.clip(np.searchsorted(knot_t, q, side="right") - 1, 0, K - 2)
+    a = (knot_t[j + 1] - q) / h[j]
+    b = 1 - a
+    eye = np.eye(K)
+    out = a[:, None] * eye[j] + b[:, None] * eye[j + 1]
+    out += ((a ** 3 - a) * h[j] ** 2 / 6)[:, None] * M[j] + ((b ** 3 - b) * h[j] ** 2 / 6)[:, None] * M[j + 1]
+    return out
+
+
+@dataclass
+class Plan:
+    """One planner cycle's result.
+
+    Attributes:
+        controls: (horizon, 12) joint targets [rad] of the mean sequence; row 0 is applied first.
+        cost: task cost of the mean's rollout.
+        refined: True if this cycle ran the ``L_MPOPI`` refinement (mode switch).
+        rollouts: rollouts simulated this cycle (× horizon steps each).
+        compute_time: wall time [s].
+    """
+
+    controls: np.ndarray
+    cost: float
+    refined: bool
+    rollouts: int
+    compute_time: float
+    info: dict = field(default_factory=dict)
+
+
+class Planner:
+    """MPOPI over a task, a gait and the planner's own model ``f(p̂)``.
+
+    Args:
+        scene: the planner's scene (its timestep should equal ``settings.dt``).
+        space: the parameters a belief sets (written by :meth:`set_params`).
+        task: the task whose cost is minimised.
+        settings: :class:`PlannerSettings`.
+        nthread: rollout threads (default: all CPUs).
+        seed: sampling seed.
+    """
+
+    def __init__(self, scene: Scene, space: ParameterSpace, task: Task, settings: PlannerSettings | None = None,
+                 nthread: int | None = None, seed: int = 0):
+        self.settings = s = settings or PlannerSettings()
+        s.check()
+        if abs(scene.model.opt.timestep - s.dt) > 1e-9:
+            raise AmheError(f"planner scene timestep {scene.model.opt.timestep} differs from planner dt {s.dt}")
+        self.scene, self.space, self.task = scene, space, task
+        self.gait: Gait = task.gait_spec
+        self.pool = RolloutPool(scene.model, nthread)
+        self._models = self.pool.models(s.samples)
+        self.params = space.mean0.copy()
+        self.set_params(self.params)
+        self.rng = np.random.default_rng(seed)
+        self.knot_t = np.linspace(0.0, (s.horizon - 1) * s.dt, s.knots)
+        self.basis = spline_basis(self.knot_t, np.arange(s.horizon) * s.dt)  # (T, K)
+        sigma0 = np.tile(np.asarray(s.noise, dtype=float), 4)  # (12,)
+        self.sigma0 = np.broadcast_to(sigma0, (s.knots, 12)).copy()
+        self.mean = np.zeros((s.knots, 12))
+        self.sigma = self.sigma0.copy()
+        lo, hi = scene.model.actuator_ctrlrange.T
+        self.ctrl_lo, self.ctrl_hi = lo.copy(), hi.copy()
+        self._t_last: float | None = None
+        self._mode: int | None = None
+        m = scene.model
+        self._qpos = slice(1, 1 + m.nq)
+        self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
+
+    def close(self) -> None:
+        self.pool.close()
+
+    def __enter__(self) -> "Planner":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def set_params(self, values: np.ndarray) -> None:
+        """Write a parameter vector (flat coordinates of ``space``) into every planner model copy."""
+        values = np.asarray(values, dtype=float)
+        for m in self._models:
+            self.space.write(m, values)
+        self.params = values.copy()
+
+    def reset(self) -> None:
+        """Forget the warm start (mean to the reference, σ to the initial noise)."""
+        self.mean[:] = 0.0
+        self.sigma = self.sigma0.copy()
+        self._t_last = self._mode = None
+
+    def _shift(self, t: float) -> None:
+        if self._t_last is not None and t > self._t_last:
+            self.mean = spline_basis(self.knot_t, self.knot_t + (t - self._t_last)) @ self.mean
+        self._t_last = t
+
+    def _controls(self, knots: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """(N, T, 12) clipped joint targets of (N, K, 12) knot offsets around the (T, 12) reference."""
+        u = ref[None] + np.einsum("tk,nkj->ntj", self.basis, knots)
+        return np.clip(u, self.ctrl_lo, self.ctrl_hi)
+
+    def _score(self, state: np.ndarray, knots: np.ndarray, ref: np.ndarray, cmd: dict) -> np.ndarray:
+        u = self._controls(knots, ref)
+        n = len(knots)
+        init = np.broadcast_to(state, (n, state.size))
+        states = self.pool.rollout(self._models[:n], init, u)
+        sc = self.scene
+        qpos = states[..., self._qpos]
+        qvel = states[..., self._qvel]
+        floor = sc.config.floor_height if sc.config.robot_floor_height is None else sc.config.robot_floor_height
+        box = qpos[..., sc.box_qpos[:3]]
+        tau = (np.arange(self.settings.horizon) + 1) * self.settings.dt
+        J = self.task.stage_cost(qpos[..., sc.base_qpos[:3]], qpos[..., sc.base_qpos[3:]],
+                                 qvel[..., sc.base_qvel[:3]], qvel[..., sc.base_qvel[3:]], box, u, ref[None], cmd,
+                                 tau, floor).mean(axis=1)
+        J += self.task.terminal_cost(box[:, -1], cmd, tau[-1])
+        return np.where(np.isfinite(J), J, np.inf)
+
+    def plan(self, state: np.ndarray, t: float, cmd: dict) -> Plan:
+        """One MPOPI cycle from the measured full-physics ``state`` (nstate,) at time ``t`` [s].
+
+        Args:
+            state: the plant's state in the planner scene's mjSTATE_FULLPHYSICS layout.
+            t: time [s] (the gait phase clock).
+            cmd: the task's :meth:`~amhe_cli.tasks.Task.command` for this cycle.
+        Returns:
+            a :class:`Plan`; apply ``controls[0]`` (and further rows if the next
+            cycle comes late).
+        """
+        t0 = time.perf_counter()
+        s = self.settings
+        self._shift(t)
+        ref = self.gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"])
+        mode = self.gait.mode(t)
+        refine = mode != self._mode
+        self._mode = mode
+        loops = s.refine_loops if refine else 1
+        floor, ceil = self.sigma0 * s.sigma_floor, self.sigma0 * s.sigma_ceiling
+        rollouts = 0
+        for loop in range(loops):
+            eps = self.rng.standard_normal((s.samples,) + self.mean.shape)
+            eps[0] = 0.0  # the current mean competes too
+            knots = self.mean[None] + self.sigma[None] * eps
+            J = self._score(state, knots, ref, cmd)
+            rollouts += s.samples
+            if refine:  # MPOPI loop: elite update of mean and σ; the last loop's mean comes from MPPI below
+                m, sd = gaussian_step(self.mean.ravel(), self.sigma.ravel(), knots.reshape(s.samples, -1), J,
+                                      s.refine_alpha)
+                self.sigma = np.clip(sd.reshape(self.sigma.shape), floor, ceil)
+                if loop < loops - 1:
+                    self.mean = m.reshape(self.mean.shape)
+        w = mppi_weights(J, s.temperature)
+        self.mean = np.einsum("n,nkj->kj", w, knots)
+        controls = self._controls(self.mean[None], ref)[0]
+        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0,
+                    {"mode": mode, "best": float(np.min(J))})
+
+
+def planner_scene(config, dt: float) -> Scene:
+    """The planner's own scene: ``config`` (a :class:`~amhe_cli.scene.SceneConfig`) at timestep ``dt``."""
+    return Scene(replace(config, timestep=dt))
+
+
+def rollout_bound_hz(scene: Scene, settings: PlannerSettings, seconds: float = 3.0, nthread: int | None = None) -> float:
+    """Cycles per second raw ``mujoco.rollout`` allows for one batch of ``samples × horizon`` steps.
+
+    Rolls out the standing robot in ``scene`` with the default controls for about
+    ``seconds`` and returns the batch rate [Hz] — the bound the planner's rate is
+    compared with (``benchmarks/control_rate.py``).
+    """
+    m = scene.model
+    d = mujoco.MjData(m)
+    qpos, qvel = scene.standing_state()
+    d.qpos[:] = qpos
+    state = scene.full_state(qpos[None], qvel[None])
+    init = np.repeat(state, settings.samples, axis=0)
+    ctrl = np.tile(qpos[scene.joint_qpos], (settings.samples, settings.horizon, 1))
+    with RolloutPool(m, nthread) as pool:
+        models = pool.models(settings.samples)
+        pool.rollout(models, init, ctrl)
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            pool.rollout(models, init, ctrl)
+            n += 1
+        return n / (time.perf_counter() - t0)

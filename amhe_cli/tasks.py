@@ -1,0 +1,260 @@
+"""The loco-manipulation tasks T1–T5 (paper §V-A, DESIGN.md §6) and their costs.
+
+A :class:`Task` says where the box starts and must go, which gait the robot
+uses, which events change the *plant* mid-run (T3's mass switch, T4's floor
+friction), and how a planner scores a rollout:
+
+* **box**: distance of the box to its target (T1/T3/T4/T5: the goal; T2: a
+  point a little ahead on the circle);
+* **waypoint**: distance of the base to the robot waypoint ``R_i`` — on the
+  pushing side of the box, behind it along the push direction (T1–T4), or the
+  robot's own stance position (T5);
+* **heading**: yaw misalignment with the push direction (walking tasks);
+* **speed**: squared error of the forward base speed to the commanded speed
+  (0.2 m/s, slowing to 0 over the last ``slow_radius`` to the goal; 0 for T5);
+  **lateral**: squared sideways base speed;
+* **posture**: base height and tilt; **effort**: joint targets away from the
+  gait reference; **fall**: a large cost once the base drops below
+  ``fall_height``.
+
+Weights live in :class:`CostWeights` (YAML-configurable through
+``amhe run --config``). Defaults were chosen by running T1 in the sim plant
+(``benchmarks/tune_run.py``, 2 seeds per variant): strong speed and lateral-speed
+terms (40) were the variant that reached the goal with the least velocity
+error (RMSE 0.04 m/s); heavier posture terms or lighter speed terms fell more often.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, replace
+
+import numpy as np
+
+from .errors import AmheError
+from .gait import GAITS, Gait
+
+#: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
+HEAD_REACH = 0.28
+#: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
+BASE_HEIGHT = 0.265
+
+
+@dataclass
+class CostWeights:
+    """Weights of the task cost terms (dimensionless multipliers of squared SI errors)."""
+
+    box: float = 5.0
+    waypoint: float = 5.0
+    heading: float = 2.0
+    speed: float = 40.0
+    lateral: float = 40.0
+    height: float = 200.0
+    tilt: float = 50.0
+    angvel: float = 0.5
+    effort: float = 0.2
+    fall: float = 1000.0
+    terminal: float = 5.0  #: extra multiple of the box term at the horizon's end
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "CostWeights":
+        names = {f.name for f in fields(cls)}
+        bad = set(d) - names
+        if bad:
+            raise AmheError(f"unknown cost weight {', '.join(sorted(bad))}: expected one of {', '.join(sorted(names))}")
+        return cls(**{k: float(v) for k, v in d.items()})
+
+
+@dataclass(frozen=True)
+class Event:
+    """A change of the plant's true parameters: at time ``t`` [s] or once the box centre passes ``box_x`` [m]."""
+
+    param: str
+    value: float
+    t: float | None = None
+    box_x: float | None = None
+
+    def due(self, t: float, box_x: float) -> bool:
+        return (self.t is not None and t >= self.t) or (self.box_x is not None and box_x >= self.box_x)
+
+
+@dataclass
+class Task:
+    """One task: start, goal or path, gait, plant truth and events.
+
+    Attributes:
+        name: ``t1`` … ``t5``.
+        box_start: (x, y) [m] of the box centre; the robot starts at the origin facing +x.
+        goal: (x, y) [m] the box must reach (T2: the end of the circle arc).
+        circle: T2's (centre x, centre y, radius [m], arc [rad]) or None.
+        gait: gait name (:data:`~amhe_cli.gait.GAITS`).
+        speed: commanded robot speed [m/s].
+        box_speed: speed of the box's reference toward its target [m/s] (T5: the pushing leg's job).
+        truth: plant parameters at the start (name -> value).
+        events: plant events.
+        duration: time limit [s].
+        goal_tol: the run ends once the box is this close to the goal [m].
+        success_radius: final goal error counted as success [m].
+        slow_radius: the commanded speed falls linearly to 0 over this last distance [m].
+        push_side: T5's lateral push direction (+1 left, −1 right); 0 otherwise.
+        weights: :class:`CostWeights`.
+        fall_height: base height under which the robot counts as fallen [m].
+    """
+
+    name: str
+    box_start: tuple
+    goal: tuple
+    circle: tuple | None = None
+    gait: str = "trot"
+    speed: float = 0.2
+    box_speed: float = 0.2
+    truth: dict = field(default_factory=lambda: {"box_mass": 4.0, "box_friction": 0.5})
+    events: tuple = ()
+    duration: float = 40.0
+    goal_tol: float = 0.05
+    success_radius: float = 0.2
+    slow_radius: float = 0.3
+    push_side: int = 0
+    weights: CostWeights = field(default_factory=CostWeights)
+    fall_height: float = 0.15
+    #: base height under which a rollout is penalised as falling [m]
+    unsafe_height: float = 0.19
+
+    @property
+    def gait_spec(self) -> Gait:
+        return GAITS[self.gait]
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["events"] = [asdict(e) for e in self.events]
+        return d
+
+    # -- targets -------------------------------------------------------------
+    def box_target(self, box_xy: np.ndarray) -> np.ndarray:
+        """(2,) where the box should head now: the goal, or (T2) a point 0.3 m ahead on the circle."""
+        if self.circle is None:
+            return np.asarray(self.goal, dtype=float)
+        cx, cy, r, arc = self.circle
+        ang = np.arctan2(box_xy[1] - cy, box_xy[0] - cx)
+        start = np.arctan2(self.box_start[1] - cy, self.box_start[0] - cx)
+        sweep = np.mod(ang - start, 2 * np.pi) if arc > 0 else -np.mod(start - ang, 2 * np.pi)
+        ahead = np.clip(sweep + np.sign(arc) * 0.3 / r, min(0, arc), max(0, arc)) + start
+        return np.array([cx + r * np.cos(ahead), cy + r * np.sin(ahead)])
+
+    def goal_error(self, box_xy: np.ndarray) -> float:
+        """e_g [m]: distance of the box centre to the goal."""
+        return float(np.linalg.norm(np.asarray(box_xy)[:2] - np.asarray(self.goal)))
+
+    def command(self, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, half_depth: float) -> dict:
+        """Per-cycle targets for the planner's cost and the gait.
+
+        Args:
+            base_xy, base_yaw: the robot's current planar pose [m], [rad].
+            box_xy: the box centre [m].
+            half_depth: half the box's extent along the push [m].
+        Returns:
+            dict with ``target`` (2,) box target, ``direction`` (2,) unit push
+            direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
+            [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
+            for the gait [rad/s].
+        """
+        target = self.box_target(box_xy)
+        to_goal = self.goal_error(box_xy) if self.circle is None else np.inf
+        slow = float(np.clip((to_goal - self.goal_tol) / self.slow_radius, 0.0, 1.0))
+        box_speed = self.box_speed * max(slow, 0.1)
+        if self.push_side:  # T5: robot stays; box goes sideways
+            d = np.array([0.0, float(self.push_side)])
+            return {"target": target, "direction": d, "waypoint": np.zeros(2), "yaw": 0.0,
+                    "speed": 0.0, "omega": 0.0, "box": np.asarray(box_xy, float).copy(), "box_speed": box_speed}
+        delta = target - box_xy
+        dist = float(np.linalg.norm(delta))
+        d = delta / dist if dist > 1e-6 else np.array([np.cos(base_yaw), np.sin(base_yaw)])
+        waypoint = box_xy - d * (half_depth + HEAD_REACH)
+        yaw = float(np.arctan2(d[1], d[0]))
+        err = float(np.angle(np.exp(1j * (yaw - base_yaw))))
+        return {"target": target, "direction": d, "waypoint": waypoint, "yaw": yaw, "speed": self.speed * slow,
+                "omega": float(np.clip(1.5 * err, -0.6, 0.6)), "box": np.asarray(box_xy, float).copy(),
+                "box_speed": box_speed}
+
+    # -- cost ------------------------------------------------------------------
+    def stage_cost(self, base_pos: np.ndarray, base_quat: np.ndarray, base_vel: np.ndarray, base_angvel: np.ndarray,
+                   box_pos: np.ndarray, ctrl: np.ndarray, ref: np.ndarray, cmd: dict, tau: np.ndarray | float = 0.0,
+                   floor: float = 0.0) -> np.ndarray:
+        """Running cost of states, vectorised over any leading axes.
+
+        The box's reference moves from where the box was at the cycle start
+        (``cmd['box']``) toward its target at the commanded speed, so the box
+        term asks for steady progress, not a lunge.
+
+        Args:
+            base_pos: (..., 3) [m]; base_quat: (..., 4) (w, x, y, z);
+            base_vel: (..., 3) world-frame linear velocity [m/s];
+            base_angvel: (..., 3) body-frame angular velocity [rad/s];
+            box_pos: (..., 3) [m]; ctrl, ref: (..., 12) joint targets and gait reference [rad];
+            cmd: :meth:`command` output; tau: time into the horizon [s],
+            broadcastable to the leading axes; floor: the robot's floor height [m].
+        Returns:
+            (...) cost per state.
+        """
+        w = self.weights
+        qw, qx, qy, qz = np.moveaxis(base_quat, -1, 0)
+        yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        tilt = 2 * (qx * qx + qy * qy)  # 1 - (body z)·(world z)
+        c = w.box * np.sum((box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
+        c += w.waypoint * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
+        heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
+        if not self.push_side:
+            c += w.heading * (1 - np.cos(yaw - cmd["yaw"]))
+        c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
+        c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]) ** 2
+        height = base_pos[..., 2] - floor
+        c += w.height * (height - BASE_HEIGHT) ** 2 + w.tilt * tilt
+        c += w.angvel * np.sum(base_angvel[..., :2] ** 2, axis=-1)
+        c += w.effort * np.sum((ctrl - ref) ** 2, axis=-1)
+        c += w.fall * (height < self.unsafe_height)
+        return c
+
+    def box_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
+        """(..., 2) where the box should be ``tau`` [s] into the horizon: moving toward the target at the
+        commanded box speed, never past it."""
+        tau = np.asarray(tau, dtype=float)[..., None]
+        start = cmd["box"]
+        delta = cmd["target"] - start
+        dist = float(np.linalg.norm(delta))
+        if dist < 1e-9:
+            return np.broadcast_to(start, tau.shape[:-1] + (2,))
+        return start + delta / dist * np.minimum(cmd["box_speed"] * tau, dist)
+
+    def terminal_cost(self, box_pos: np.ndarray, cmd: dict, tau: float) -> np.ndarray:
+        """(...) extra cost of the box's position at the end of a horizon ``tau`` [s] long."""
+        return self.weights.terminal * self.weights.box * np.sum(
+            (box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
+
+
+def _t4_truth():
+    return {"box_mass": 4.0, "box_friction": 0.4}
+
+
+#: The tasks by name (DESIGN.md §6). The robot starts at the origin facing +x; the box just ahead of its head.
+TASKS = {
+    "t1": Task("t1", box_start=(0.52, 0.0), goal=(2.0, 0.0)),
+    "t2": Task("t2", box_start=(0.52, 0.0), goal=(0.52 + 1.0, 1.0), circle=(0.52, 1.0, 1.0, np.pi / 2),
+               duration=60.0),
+    "t3": Task("t3", box_start=(0.52, 0.0), goal=(3.0, 0.0), events=(Event("box_mass", 6.0, t=10.0),),
+               duration=60.0),
+    "t4": Task("t4", box_start=(0.52, 0.0), goal=(2.5, 0.0), truth=_t4_truth(),
+               events=(Event("box_friction", 0.8, box_x=1.5),), duration=60.0),
+    "t5": Task("t5", box_start=(0.45, -0.05), goal=(0.45, -0.55), gait="tripod", speed=0.0, push_side=-1,
+               duration=20.0),
+}
+
+
+def get_task(name: str, **overrides) -> Task:
+    """The task ``name`` (case-insensitive) with fields replaced by ``overrides``.
+
+    Raises:
+        AmheError: unknown task name.
+    """
+    key = name.lower()
+    if key not in TASKS:
+        raise AmheError(f"unknown task {name!r}: expected one of {', '.join(TASKS)}")
+    return replace(TASKS[key], **overrides)
