@@ -24,7 +24,6 @@ from __future__ import annotations
 import time
 from dataclasses import asdict, dataclass, field, fields, replace
 
-import mujoco
 import numpy as np
 
 from .errors import AmheError
@@ -266,26 +265,3 @@ def planner_scene(config, dt: float) -> Scene:
     """The planner's own scene: ``config`` (a :class:`~amhe_cli.scene.SceneConfig`) at timestep ``dt``."""
     return Scene(replace(config, timestep=dt))
 
-
-def rollout_bound_hz(scene: Scene, settings: PlannerSettings, seconds: float = 3.0, nthread: int | None = None) -> float:
-    """Cycles per second raw ``mujoco.rollout`` allows for one batch of ``samples × horizon`` steps.
-
-    Rolls out the standing robot in ``scene`` with the default controls for about
-    ``seconds`` and returns the batch rate [Hz] — the bound the planner's rate is
-    compared with (``benchmarks/control_rate.py``).
-    """
-    m = scene.model
-    d = mujoco.MjData(m)
-    qpos, qvel = scene.standing_state()
-    d.qpos[:] = qpos
-    state = scene.full_state(qpos[None], qvel[None])
-    init = np.repeat(state, settings.samples, axis=0)
-    ctrl = np.tile(qpos[scene.joint_qpos], (settings.samples, settings.horizon, 1))
-    with RolloutPool(m, nthread) as pool:
-        models = pool.models(settings.samples)
-        pool.rollout(models, init, ctrl)
-        n, t0 = 0, time.perf_counter()
-        while time.perf_counter() - t0 < seconds:
-            pool.rollout(models, init, ctrl)
-            n += 1
-        return n / (time.perf_counter() - t0)
