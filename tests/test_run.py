@@ -1,0 +1,481 @@
+"""The closed loop: spline and MPPI rules, gaits, tasks, planner modes, runs and the ``run`` command.
+
+Closed-loop runs here are short (≤ 1.5 s of plant time) with a small planner
+(8 samples × 20 steps), so the whole file takes seconds; they check behaviour
+(events, modes, estimator failures, files written), not task success.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from amhe_cli.belief import Belief
+from amhe_cli.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
+from amhe_cli.errors import AmheError
+from amhe_cli.evaluate import run_settings, summarise
+from amhe_cli.gait import GAITS, LEGS, STAND_HEIGHT
+from amhe_cli.maneuver import CALF, THIGH
+from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.planner import PlannerSettings, spline_basis
+from amhe_cli.sampling import mppi_weights
+from amhe_cli.scene import STAND_JOINTS
+from amhe_cli.tasks import BASE_HEIGHT, HEAD_REACH, Event, get_task
+
+#: small planner: enough to exercise every code path, cheap enough for a test
+SMALL = {"samples": 8, "horizon": 20}
+HALF_DEPTH = TASK_BOX_SIZE[0] / 2  # what run_task passes to Task.command
+
+
+def small_settings(mode: str, **kw) -> RunSettings:
+    return RunSettings(mode=mode, planner=PlannerSettings(**SMALL), threads=1, **kw)
+
+
+def belief(mass: float = 5.0, friction: float = 0.3) -> Belief:
+    return Belief(values={"box_mass": mass, "box_friction": friction},
+                  std={"box_mass": 0.5, "box_friction": 0.05}, free=["box_mass", "box_friction"])
+
+
+# -- spline_basis -----------------------------------------------------------------
+
+KNOTS = np.array([0.0, 0.1, 0.25, 0.4])  # non-uniform on purpose
+
+
+def test_spline_interpolates_knots_exactly():
+    B = spline_basis(KNOTS, KNOTS)
+    np.testing.assert_allclose(B, np.eye(len(KNOTS)), atol=1e-12)
+    y = np.array([0.3, -1.0, 2.0, 0.5])
+    np.testing.assert_allclose(spline_basis(KNOTS, KNOTS) @ y, y, atol=1e-12)
+
+
+def test_spline_reproduces_constants_and_lines():
+    q = np.linspace(0.0, 0.4, 57)
+    B = spline_basis(KNOTS, q)
+    assert B.shape == (57, 4)
+    np.testing.assert_allclose(B.sum(axis=1), 1.0, atol=1e-12)
+    # a natural cubic spline through collinear knots is that line
+    np.testing.assert_allclose(B @ (2.0 - 3.0 * KNOTS), 2.0 - 3.0 * q, atol=1e-12)
+
+
+def test_spline_is_smooth_at_interior_knots():
+    """C¹ at an interior knot (piecewise-linear interpolation would not be)."""
+    y = np.array([0.0, 1.0, -0.5, 0.2])
+    h = 1e-6
+    for k in KNOTS[1:-1]:
+        left = (spline_basis(KNOTS, [k])[0] - spline_basis(KNOTS, [k - h])[0]) @ y / h
+        right = (spline_basis(KNOTS, [k + h])[0] - spline_basis(KNOTS, [k])[0]) @ y / h
+        assert abs(left - right) < 1e-3 * max(1.0, abs(left))
+
+
+def test_spline_holds_end_values_outside_knots():
+    y = np.array([0.3, -1.0, 2.0, 0.5])
+    out = spline_basis(KNOTS, [-1.0, -0.01, 0.41, 7.0]) @ y
+    np.testing.assert_allclose(out, [0.3, 0.3, 0.5, 0.5], atol=1e-12)
+
+
+# -- mppi_weights ----------------------------------------------------------------
+
+def test_mppi_weights_normalised_and_ordered():
+    costs = np.array([3.0, 1.0, 2.0, 10.0, 1.5])
+    w = mppi_weights(costs, 0.5)
+    assert w.sum() == pytest.approx(1.0)
+    assert np.all(w > 0)
+    assert np.argmax(w) == 1
+    # lower cost, larger weight, everywhere
+    order = np.argsort(costs)
+    assert np.all(np.diff(w[order]) < 0)
+
+
+def test_mppi_weights_temperature_sharpens():
+    costs = np.array([0.0, 0.5, 1.0])
+    assert mppi_weights(costs, 0.05)[0] > mppi_weights(costs, 1.0)[0]
+
+
+def test_mppi_weights_ignore_non_finite_costs():
+    w = mppi_weights(np.array([1.0, np.nan, 2.0, np.inf, -np.inf]), 0.2)
+    assert w[1] == 0 and w[3] == 0 and w[4] == 0
+    assert w.sum() == pytest.approx(1.0)
+    assert w[0] > w[2] > 0
+
+
+@pytest.mark.parametrize("temperature", [0.0, -0.1, float("nan")])
+def test_mppi_weights_reject_non_positive_temperature(temperature):
+    with pytest.raises(ValueError):
+        mppi_weights(np.array([1.0, 2.0]), temperature)
+
+
+# -- gaits -------------------------------------------------------------------------
+
+#: times that never fall on a trot phase boundary (multiples of 0.25 s)
+T = 0.007 + 0.031 * np.arange(60)
+
+
+def foot_xz(ref: np.ndarray, leg: str) -> tuple[np.ndarray, np.ndarray]:
+    """Foot position (forward, up) in the hip's sagittal plane from (…, 12) joint targets (planar FK)."""
+    i = LEGS.index(leg)
+    th, ca = ref[..., 3 * i + 1], ref[..., 3 * i + 2]
+    x = -THIGH * np.sin(th) - CALF * np.sin(th + ca)
+    z = -THIGH * np.cos(th) - CALF * np.cos(th + ca)
+    return x, z
+
+
+def test_trot_diagonal_pairs_alternate():
+    trot = GAITS["trot"]
+    c = trot.contact(T)
+    assert c.shape == (len(T), 4)
+    fr, fl, rr, rl = (c[:, LEGS.index(n)] for n in ("FR", "FL", "RR", "RL"))
+    np.testing.assert_array_equal(fr, rl)
+    np.testing.assert_array_equal(fl, rr)
+    np.testing.assert_array_equal(fr, ~fl)
+    assert np.all(c.sum(axis=1) == 2)
+    # half a period later the other pair is down
+    np.testing.assert_array_equal(trot.contact(T + trot.period / 2), ~c)
+    # and it really does switch: two modes over the cycle
+    assert len({trot.mode(t) for t in T}) == 2
+
+
+def test_stand_has_all_feet_down_and_one_mode():
+    stand = GAITS["stand"]
+    assert stand.contact(T).all()
+    assert {stand.mode(t) for t in T} == {15}
+    for v in (0.0, 0.3):
+        np.testing.assert_array_equal(stand.reference(T, v), np.broadcast_to(STAND_JOINTS, (len(T), 12)))
+
+
+def test_tripod_front_right_never_in_stance():
+    tri = GAITS["tripod"]
+    c = tri.contact(T)
+    assert not c[:, LEGS.index("FR")].any()
+    assert c[:, [LEGS.index(n) for n in ("FL", "RR", "RL")]].all()
+    ref = tri.reference(T)
+    np.testing.assert_allclose(ref[:, 0:3], np.broadcast_to(tri.free_pose, (len(T), 3)))
+    np.testing.assert_allclose(ref[:, 3:], np.broadcast_to(STAND_JOINTS[3:], (len(T), 9)))
+
+
+def test_trot_reference_in_place_keeps_feet_under_hips():
+    trot = GAITS["trot"]
+    ref = trot.reference(T, v=0.0)
+    assert ref.shape == (len(T), 12)
+    np.testing.assert_array_equal(ref[:, 0::3], 0.0)  # hips (abduction) stay at 0
+    stance = trot.contact(T)
+    for k, leg in enumerate(LEGS):
+        x, z = foot_xz(ref, leg)
+        np.testing.assert_allclose(x, 0.0, atol=1e-9)
+        np.testing.assert_allclose(z[stance[:, k]], -STAND_HEIGHT, atol=1e-9)
+        swing = z[~stance[:, k]]
+        assert np.all(swing > -STAND_HEIGHT + 1e-9)  # swing feet lift ...
+        assert swing.max() == pytest.approx(-STAND_HEIGHT + trot.step_height, abs=0.01)  # ... by step_height
+
+
+def test_trot_forward_speed_moves_stance_foot_backward():
+    trot = GAITS["trot"]
+    v = 0.3
+    step = v * trot.duty * trot.period
+    # FR is in stance over [0, 0.25) s of each cycle
+    ts = np.linspace(0.001, trot.duty * trot.period - 0.001, 30)
+    assert trot.contact(ts)[:, LEGS.index("FR")].all()
+    x, z = foot_xz(trot.reference(ts, v=v), "FR")
+    assert np.all(np.diff(x) < 0)  # the foot slides backward under the hip
+    assert x[0] - x[-1] == pytest.approx(step, abs=2e-3)
+    assert x[0] == pytest.approx(step / 2, abs=2e-3)
+    np.testing.assert_allclose(z, -STAND_HEIGHT, atol=1e-9)  # without lifting
+    # mid-swing the foot is forward-moving and lifted by step_height
+    xs, zs = foot_xz(trot.reference(np.array([0.37, 0.375, 0.38]), v=v), "FR")
+    assert np.all(np.diff(xs) > 0)
+    assert zs[1] == pytest.approx(-STAND_HEIGHT + trot.step_height, abs=1e-6)
+    assert not np.allclose(trot.reference(T, v=v), trot.reference(T, v=0.0))
+
+
+# -- tasks ---------------------------------------------------------------------------
+
+def test_unknown_task():
+    with pytest.raises(AmheError, match="t9.*t1"):
+        get_task("t9")
+    assert get_task("T1").name == "t1"
+    assert get_task("t1", duration=2.0).duration == 2.0
+    assert get_task("t1").duration == 40.0  # overrides do not leak into the table
+
+
+def test_t1_waypoint_behind_box_on_line_to_goal():
+    task = get_task("t1")
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
+    np.testing.assert_allclose(cmd["target"], task.goal)
+    np.testing.assert_allclose(cmd["direction"], [1.0, 0.0])
+    assert cmd["waypoint"][0] < task.box_start[0]
+    assert cmd["waypoint"][0] == pytest.approx(task.box_start[0] - HALF_DEPTH - HEAD_REACH)
+    assert cmd["waypoint"][1] == pytest.approx(0.0)
+    assert cmd["speed"] == pytest.approx(task.speed) and task.speed == pytest.approx(0.2)
+    # box off the axis: the waypoint is on the goal-box line, beyond the box
+    box = np.array([1.0, 0.4])
+    cmd = task.command(np.zeros(2), 0.0, box, HALF_DEPTH)
+    goal = np.asarray(task.goal)
+    a, b = box - goal, cmd["waypoint"] - goal
+    assert abs(a[0] * b[1] - a[1] * b[0]) < 1e-9
+    assert np.linalg.norm(b) == pytest.approx(np.linalg.norm(a) + HALF_DEPTH + HEAD_REACH)
+    assert cmd["yaw"] == pytest.approx(np.arctan2(-0.4, 1.0))
+    assert cmd["omega"] < 0  # turn right toward the push direction
+
+
+def test_t1_speed_command_slows_to_zero_at_goal():
+    task = get_task("t1")
+    goal = np.asarray(task.goal)
+    far = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)["speed"]
+    mid = task.command(np.zeros(2), 0.0, goal - [0.2, 0.0], HALF_DEPTH)["speed"]
+    near = task.command(np.zeros(2), 0.0, goal - [0.5 * task.goal_tol, 0.0], HALF_DEPTH)["speed"]
+    assert far == pytest.approx(0.2)
+    assert 0 < mid < far
+    assert near == 0.0
+
+
+def test_box_reference_never_passes_target():
+    task = get_task("t1")
+    box = np.array([1.8, 0.0])
+    cmd = task.command(np.zeros(2), 0.0, box, HALF_DEPTH)
+    tau = np.linspace(0.0, 100.0, 2001)
+    ref = task.box_reference(cmd, tau)
+    assert ref.shape == (len(tau), 2)
+    np.testing.assert_allclose(ref[0], box)
+    assert np.all(ref[:, 0] <= task.goal[0] + 1e-12)
+    assert np.all(np.diff(ref[:, 0]) >= 0)
+    np.testing.assert_allclose(ref[-1], task.goal)
+    # it moves at the commanded box speed before it gets there
+    assert task.box_reference(cmd, 0.1)[0] - box[0] == pytest.approx(0.1 * cmd["box_speed"])
+
+
+def test_stage_cost_penalises_a_fallen_base():
+    task = get_task("t1")
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
+    quat, zero = np.array([1.0, 0, 0, 0]), np.zeros(3)
+    box = np.array([*task.box_start, 0.19])
+
+    def cost(height):
+        return float(task.stage_cost(np.array([0.0, 0.0, height]), quat, zero, zero, box, STAND_JOINTS,
+                                     STAND_JOINTS, cmd))
+
+    nominal, fallen = cost(BASE_HEIGHT), cost(0.1)
+    assert fallen > nominal + task.weights.fall
+    # vectorised over leading axes
+    c = task.stage_cost(np.array([[0, 0, BASE_HEIGHT], [0, 0, 0.1]]), np.tile(quat, (2, 1)), np.zeros((2, 3)),
+                        np.zeros((2, 3)), np.tile(box, (2, 1)), np.tile(STAND_JOINTS, (2, 1)),
+                        np.tile(STAND_JOINTS, (2, 1)), cmd)
+    np.testing.assert_allclose(c, [nominal, fallen])
+
+
+# -- modes: only the planner's parameters differ ---------------------------------------
+
+def test_modes_differ_only_in_planner_parameters():
+    task = get_task("t1")
+    truth = {"box_mass": 4.0, "box_friction": 0.5}
+    p_true, s_true = make_planner(task, small_settings("true"), None, truth)
+    p_base, s_base = make_planner(task, small_settings("baseline"), belief(6.0, 0.3), truth)
+    try:
+        mt, mb = p_true._models[0], p_base._models[0]
+        box = p_true.scene.box_body
+        pairs = p_true.scene.region_pairs
+        assert mt.body_mass[box] == pytest.approx(4.0)
+        assert mb.body_mass[box] == pytest.approx(6.0)
+        np.testing.assert_allclose(mt.pair_friction[pairs, 0], 0.5)
+        np.testing.assert_allclose(mb.pair_friction[pairs, 0], 0.3)
+        # an inertia absent from the belief follows its mass
+        np.testing.assert_allclose(mb.body_inertia[box], mt.body_inertia[box] * 6.0 / 4.0)
+        # every model copy of a planner holds the same parameters
+        for m in p_base._models:
+            assert m.body_mass[box] == pytest.approx(6.0)
+        robot = np.arange(mt.nbody) != box
+        np.testing.assert_array_equal(mt.body_mass[robot], mb.body_mass[robot])
+        np.testing.assert_array_equal(mt.actuator_gainprm, mb.actuator_gainprm)
+        np.testing.assert_array_equal(mt.actuator_biasprm, mb.actuator_biasprm)
+        np.testing.assert_array_equal(mt.geom_friction, mb.geom_friction)
+        np.testing.assert_array_equal(mt.geom_size, mb.geom_size)
+        assert mt.opt.timestep == mb.opt.timestep == pytest.approx(p_true.settings.dt)
+        assert s_true.labels == s_base.labels
+    finally:
+        p_true.close()
+        p_base.close()
+
+
+def test_baseline_planner_needs_a_belief():
+    with pytest.raises(AmheError, match="belief"):
+        make_planner(get_task("t1"), small_settings("baseline"), None, {"box_mass": 4.0})
+    with pytest.raises(AmheError, match="belief"):
+        run_task(get_task("t1", duration=0.1), None, small_settings("adaptive"))
+
+
+# -- closed-loop runs ------------------------------------------------------------------
+
+T3_EARLY = dict(duration=0.5, events=(Event("box_mass", 6.0, t=0.1),))
+
+
+def test_t3_event_changes_plant_not_baseline_planner():
+    task = get_task("t3", **T3_EARLY)
+    r = run_task(task, belief(5.0, 0.3), small_settings("baseline"))
+    ts = r.traj.meta["truth_series"]
+    assert ts["box_mass"][0] == 4.0 and ts["box_mass"][-1] == 6.0
+    t_switch = ts["t"][np.argmax(ts["box_mass"] == 6.0)]
+    assert t_switch == pytest.approx(0.1, abs=0.011)
+    assert r.traj.meta["truth"]["box_mass"] == 4.0  # truth at the start
+    col = r.labels.index("box_mass")
+    est_t, est_v, _ = r.estimates
+    np.testing.assert_array_equal(est_v[:, col], 5.0)
+    assert len(est_t) == 1  # the planner's parameters never changed
+    assert any("plant event box_mass -> 6.0" in m for m in r.messages)
+    assert r.traj.t[-1] == pytest.approx(0.5, abs=0.003)
+
+
+def test_t3_event_reaches_true_mode_planner():
+    task = get_task("t3", **T3_EARLY)
+    r = run_task(task, None, small_settings("true"))
+    col = r.labels.index("box_mass")
+    est_t, est_v, est_s = r.estimates
+    assert est_v[0, col] == pytest.approx(4.0)
+    assert 6.0 in est_v[:, col]
+    assert np.all(est_t[est_v[:, col] == 6.0] >= 0.1 - 1e-9)
+    np.testing.assert_array_equal(est_s, 0.0)  # the truth has no uncertainty
+    # inertia follows the new mass in the planner too
+    i0 = r.labels.index("box_inertia_0")
+    assert est_v[-1, i0] == pytest.approx(est_v[0, i0] * 6.0 / 4.0)
+
+
+@pytest.fixture(scope="module")
+def t1_true_runs():
+    task, settings = run_settings("t1", "true", {"planner": SMALL}, seed=0, threads=1, duration=1.5)
+    return task, run_task(task, None, settings), run_task(task, None, settings)
+
+
+def test_t1_closed_loop_makes_progress(t1_true_runs):
+    task, r, _ = t1_true_runs
+    box, base = r.traj.box_pos, r.traj.base_pos
+    assert box[0, 0] == pytest.approx(0.52)
+    assert box[-1, 0] - box[0, 0] >= 0.02 or base[-1, 0] - base[0, 0] >= 0.05
+    assert not r.fell
+    assert base[:, 2].min() > task.fall_height
+    assert r.traj.t[-1] == pytest.approx(1.5, abs=0.003)
+    assert r.traj.dt == pytest.approx(0.002)
+    assert np.isfinite([r.e_g, r.J, r.t_exec, r.rmse]).all()
+    assert r.e_g == pytest.approx(task.goal_error(box[-1, :2]))
+    assert set(r.metrics()) == {"success", "e_g", "J", "t_exec", "rmse"}
+    assert r.control_hz > 0
+
+
+def test_t1_lock_step_is_reproducible(t1_true_runs):
+    _, a, b = t1_true_runs
+    np.testing.assert_array_equal(a.traj.box_pos, b.traj.box_pos)
+    np.testing.assert_array_equal(a.traj.ctrl, b.traj.ctrl)
+
+
+def test_estimator_failure_never_stops_the_controller(monkeypatch):
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("injected estimator fault")
+
+    monkeypatch.setattr(MovingHorizonEstimator, "update", broken)
+    task = get_task("t1", duration=1.5)
+    r = run_task(task, belief(5.0, 0.3), small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25)))
+    assert r.traj.t[-1] == pytest.approx(1.5, abs=0.003)
+    failures = [m for m in r.messages if "MHE update failed" in m]
+    assert failures and all("injected estimator fault" in m for m in failures)
+    assert len(failures) >= 3  # updates at 0.5, 0.75, 1.0, 1.25 s all failed, and were all tried
+    est_t, est_v, _ = r.estimates
+    assert len(est_t) == 1  # the starting belief stays
+    assert est_v[0, r.labels.index("box_mass")] == pytest.approx(5.0)
+
+
+# -- the run command -----------------------------------------------------------------
+
+def amhe(capsys, *args):
+    """Run the CLI in-process: (exit code, stdout, stderr)."""
+    from amhe_cli.cli import main
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(result, *words):
+    code, _, err = result
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln.startswith("amhe: error:")]
+    assert len(lines) == 1, err
+    for w in words:
+        assert w in lines[0], lines[0]
+
+
+def test_run_unknown_task(capsys, tmp_path):
+    one_line_error(amhe(capsys, "run", "--task", "t9", "--out", tmp_path / "r.mcap"), "t9")
+    assert not (tmp_path / "r.mcap").exists()
+
+
+def test_run_real_robot_not_supported(capsys, tmp_path):
+    one_line_error(amhe(capsys, "run", "--target", "go1", "--out", tmp_path / "r.mcap"), "go1")
+
+
+def test_run_bad_config(capsys, tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("plannr: {samples: 8}\n")
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), "plannr")
+    cfg.write_text("planner: {sample: 8}\n")
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), "sample")
+    cfg.write_text("planner: {samples: 8, horizon: 20}\n")
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--duration", "0",
+                        "--out", tmp_path / "r.mcap"), "--duration")
+    assert not (tmp_path / "r.mcap").exists()
+
+
+def test_run_json_records_and_refuses_to_overwrite(capsys, tmp_path):
+    from amhe_cli.io.reader import read_log
+
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("planner: {samples: 8, horizon: 20}\n")
+    mcap, csv = tmp_path / "r.mcap", tmp_path / "r.truth.csv"
+    args = ["run", "--task", "t1", "--mode", "true", "--duration", "0.4", "--json", "--out", mcap,
+            "--config", cfg, "--threads", "1"]
+    code, out, err = amhe(capsys, *args)
+    assert code == 0, err
+    lines = out.strip().splitlines()
+    assert len(lines) == 1, out
+    metrics = json.loads(lines[0])
+    assert set(metrics) == {"success", "e_g", "J", "t_exec", "rmse"}
+    assert isinstance(metrics["success"], bool)
+    assert metrics["t_exec"] == pytest.approx(0.4, abs=0.01)
+    assert mcap.is_file() and csv.is_file()
+
+    rows = csv.read_text().splitlines()
+    assert rows[0] == "t,box_mass_kg,mu_floor_at_box_center"
+    assert [float(x) for x in rows[1].split(",")] == pytest.approx([0.0, 4.0, 0.5])
+
+    traj = read_log(str(mcap))
+    assert traj.dt == pytest.approx(0.002)
+    assert traj.t[-1] - traj.t[0] == pytest.approx(0.4, abs=0.02)
+    assert abs(len(traj) - 200) <= 5
+    assert traj.box_pos[0, 0] == pytest.approx(0.52, abs=1e-3)
+
+    before = mcap.read_bytes()
+    one_line_error(amhe(capsys, *args), "exists", "--force")
+    assert mcap.read_bytes() == before
+
+
+# -- evaluate's table ----------------------------------------------------------------
+
+def test_summarise_gives_success_rate_and_mean_std_per_mode():
+    def row(mode, success, e_g, J, t_exec, rmse):
+        return {"task": "t1", "mode": mode, "seed": 0, "success": success, "e_g": e_g, "J": J, "t_exec": t_exec,
+                "rmse": rmse, "fell": False, "control_hz": 50.0}
+
+    rows = [row("true", True, 0.1, 1.0, 10.0, 0.05), row("true", False, 0.5, 3.0, 20.0, 0.15),
+            row("true", True, 0.3, 2.0, 12.0, 0.10), row("true", True, 0.2, 2.0, 14.0, 0.10),
+            row("baseline", False, 1.0, 5.0, 40.0, 0.2)]
+    table = summarise(rows, ["baseline", "adaptive", "true"])
+    assert [r["mode"] for r in table] == ["baseline", "true"]  # asked-for order; modes without rows left out
+    base, true = table
+    assert base["n"] == 1 and base["S_R"] == 0.0
+    assert base["e_g"] == (pytest.approx(1.0), pytest.approx(0.0))
+    assert true["n"] == 4 and true["S_R"] == pytest.approx(75.0)
+    for key, vals in (("e_g", [0.1, 0.5, 0.3, 0.2]), ("J", [1.0, 3.0, 2.0, 2.0]), ("t_exec", [10.0, 20.0, 12.0, 14.0]),
+                      ("rmse", [0.05, 0.15, 0.1, 0.1])):
+        assert true[key] == (pytest.approx(np.mean(vals)), pytest.approx(np.std(vals))), key
+    json.dumps(table)  # plain floats: the --json table
