@@ -273,7 +273,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     fell, t_reach = False, None
     costs, speeds, cmd_speeds, box_path = [], [], [], []
     pending_events = list(task.events)
-    plan = None
+    plan, prev_used = None, 0
     try:
         while plant.data.time < task.duration - 1e-9:
             t = float(plant.data.time)
@@ -292,11 +292,13 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"])
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd)))
-            if s.realtime:
+            last = len(plan.controls) - 1
+            if s.realtime:  # while the planner computed, the plant ran on with the previous plan's next targets
                 lag = int(np.ceil(plan.compute_time / pdt))
-                rows = [prev.controls[min(i + cycle_steps, len(prev.controls) - 1)] for i in range(lag)] \
-                    if prev is not None else [plan.controls[0]] * lag
-                rows += [plan.controls[min(lag, len(plan.controls) - 1)]]
+                rows = [prev.controls[min(prev_used + i, last)] for i in range(lag)] if prev is not None \
+                    else [plan.controls[0]] * lag
+                rows += [plan.controls[min(lag, last)]]
+                prev_used = lag + 1
             else:
                 rows = plan.controls[:cycle_steps]
             for row in rows:
@@ -314,10 +316,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 fell = True
                 messages.append(f"t={now:.2f} s: the robot fell (base at {plant.data.qpos[sc.base_qpos[2]]:.3f} m)")
                 break
-            if task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol and task.circle is None:
-                t_reach = now
-                break
-            if task.circle is not None and task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
+            if task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
                 t_reach = now
                 break
             if estimator is not None:
