@@ -34,6 +34,7 @@ import numpy as np
 
 from .belief import Belief
 from .errors import AmheError
+from .io.quat import quat_to_yaw
 from .mhe import MHESettings, MovingHorizonEstimator, Update
 from .params import ParameterSpace
 from .plant import SimPlant
@@ -162,7 +163,8 @@ class RunResult:
         t_exec: time until the box reached ``task.goal_tol`` of the goal, else the run's length [s].
         rmse: RMS error of the base's forward speed to the commanded speed [m/s].
         fell: the base dropped below ``task.fall_height``.
-        control_hz: planner cycles per wall-clock second.
+        control_hz: planner cycles per wall-clock second (plant stepping included).
+        plan_times: (cycles,) wall time of each planner cycle [s].
         traj: the plant's recording (2 ms grid), truth series in ``meta``.
         estimates: (t [s], (n, d) physical values, (n, d) std) of the planner's
             parameters each time they changed (t = plant time of the swap).
@@ -183,6 +185,7 @@ class RunResult:
     messages: list = field(default_factory=list)
     box_path: np.ndarray | None = None
     speed: np.ndarray | None = None
+    plan_times: np.ndarray | None = None
 
     def metrics(self) -> dict:
         """The JSON object ``amhe run --json`` prints."""
@@ -219,11 +222,6 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     space = ParameterSpace(pscene, free=RUN_PARAMS, prior=prior,
                            prior_std=None if s.mode == "true" else _belief_std(belief))
     return Planner(pscene, space, task, s.planner, nthread=s.threads, seed=s.seed), space
-
-
-def _yaw(q: np.ndarray) -> float:
-    w, x, y, z = q
-    return float(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
 
 
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
@@ -269,7 +267,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     cycle_steps = max(1, int(round(s.cycle / pdt)))
     next_update = s.mhe.window
     pending = False
-    plans, wall0 = 0, time.perf_counter()
+    plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
     costs, speeds, cmd_speeds, box_path = [], [], [], []
     pending_events = list(task.events)
@@ -279,14 +277,14 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             t = float(plant.data.time)
             q, v = plant.data.qpos.copy(), plant.data.qvel.copy()
             box_xy = q[sc.box_qpos[:2]]
-            cmd = task.command(q[sc.base_qpos[:2]], _yaw(q[sc.base_qpos[3:]]), box_xy, half_depth)
+            yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
+            cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth)
             state = pscene.full_state(q[None], v[None])[0]
             prev = plan
             plan = planner.plan(state, t, cmd)
-            plans += 1
+            plan_times.append(plan.compute_time)
             # executed-trajectory metrics at the cycle start
-            head = np.array([np.cos(_yaw(q[sc.base_qpos[3:]])), np.sin(_yaw(q[sc.base_qpos[3:]]))])
-            speeds.append(float(v[sc.base_qvel[:2]] @ head))
+            speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])
             box_path.append([t, *box_xy])
             ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"])
@@ -347,9 +345,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         success=bool(e_g <= task.success_radius and not fell), e_g=e_g, J=float(np.mean(costs)),
         t_exec=float(t_reach if t_reach is not None else traj.t[-1]),
         rmse=float(np.sqrt(np.mean((speeds - cmd_speeds) ** 2))), fell=fell,
-        control_hz=plans / wall if wall > 0 else float("nan"), traj=traj,
+        control_hz=len(plan_times) / wall if wall > 0 else float("nan"), traj=traj,
         estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
         messages=messages, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
+        plan_times=np.array(plan_times),
     )
 
 

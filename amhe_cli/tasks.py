@@ -32,6 +32,7 @@ import numpy as np
 
 from .errors import AmheError
 from .gait import GAITS, Gait
+from .io.quat import quat_to_yaw
 
 #: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
 HEAD_REACH = 0.28
@@ -196,8 +197,8 @@ class Task:
             (...) cost per state.
         """
         w = self.weights
-        qw, qx, qy, qz = np.moveaxis(base_quat, -1, 0)
-        yaw = np.arctan2(2 * (qw * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        _, qx, qy, _ = np.moveaxis(base_quat, -1, 0)
+        yaw = quat_to_yaw(base_quat)
         tilt = 2 * (qx * qx + qy * qy)  # 1 - (body z)·(world z)
         c = w.box * np.sum((box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
         c += w.waypoint * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
