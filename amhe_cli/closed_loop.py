@@ -25,19 +25,24 @@ skipped and logged.
 
 from __future__ import annotations
 
+import csv
+import json
 import threading
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
 
-from .belief import Belief
+from .belief import Belief, to_plain
 from .errors import AmheError
 from .io.quat import quat_to_yaw
+from .io.writer import write_mcap
 from .mhe import MHESettings, MovingHorizonEstimator, Update
 from .params import ParameterSpace
 from .plant import SimPlant
+from .probe import TRUTH_RECORD
 from .planner import Planner, PlannerSettings, planner_scene
 from .scene import Scene, SceneConfig
 from .tasks import Task
@@ -368,14 +373,6 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     Raises:
         AmheError: a file exists and ``overwrite`` is False.
     """
-    import csv
-    import json
-    from pathlib import Path
-
-    from .io.writer import write_mcap
-    from .probe import TRUTH_RECORD
-    from .belief import to_plain
-
     path = Path(path)
     csv_path = path.with_name(path.name.split(".mcap")[0] + ".truth.csv")
     if csv_path.exists() and not overwrite:

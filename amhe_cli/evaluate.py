@@ -20,10 +20,14 @@ import numpy as np
 import yaml
 
 from .belief import Belief, to_plain
-from .closed_loop import MODES, RUN_PARAMS, RunSettings, run_task
-from .errors import AmheError
+from .closed_loop import MODES, RUN_PARAMS, RunSettings, run_task, task_scene_config
+from .errors import AmheError, check_names
+from .identify import IdentifySettings, identify
 from .mhe import MHESettings
+from .params import ParameterSpace
 from .planner import PlannerSettings
+from .probe import simulate_probe
+from .scene import Scene, infer_scene_config
 from .tasks import CostWeights, Task, get_task
 
 CONFIG_KEYS = {"planner", "weights", "mhe", "kp", "kd", "cycle", "task"}
@@ -45,9 +49,7 @@ def load_config(path: str | os.PathLike | None) -> dict:
         raise AmheError(f"--config {path}: not valid YAML ({str(e).splitlines()[0]})") from None
     if not isinstance(data, dict):
         raise AmheError(f"--config {path}: expected a mapping of {', '.join(sorted(CONFIG_KEYS))}")
-    bad = set(data) - CONFIG_KEYS
-    if bad:
-        raise AmheError(f"--config {path}: unknown key {', '.join(sorted(bad))}; expected {', '.join(sorted(CONFIG_KEYS))}")
+    check_names(data, CONFIG_KEYS, f"key in --config {path}:")
     return data
 
 
@@ -63,16 +65,12 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     if duration is not None:
         overrides["duration"] = duration
     known = set(Task.__dataclass_fields__) - {"name", "weights", "events"}
-    bad = set(overrides) - known
-    if bad:
-        raise AmheError(f"unknown task setting {', '.join(sorted(bad))}: expected one of {', '.join(sorted(known))}")
+    check_names(overrides, known, "task setting")
     if "duration" in overrides and not float(overrides["duration"]) > 0:
         raise AmheError(f"--duration {overrides['duration']}: expected a positive number of seconds")
     task = get_task(task_name, weights=CostWeights.from_dict(config.get("weights") or {}), **overrides)
     mhe = config.get("mhe") or {}
-    bad = set(mhe) - set(MHESettings.__dataclass_fields__)
-    if bad:
-        raise AmheError(f"unknown mhe setting {', '.join(sorted(bad))}")
+    check_names(mhe, MHESettings.__dataclass_fields__, "mhe setting")
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(config.get("planner") or {}),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
                            **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config})
@@ -86,12 +84,6 @@ def probe_belief(task: Task, seed: int = 0, threads: int | None = None, progress
     The probe is the lunge manoeuvre of ``amhe probe --target sim`` with the
     task's box; the identification uses the defaults of ``amhe identify``.
     """
-    from .identify import IdentifySettings, identify
-    from .params import ParameterSpace
-    from .probe import simulate_probe
-    from .scene import Scene, infer_scene_config
-    from .closed_loop import task_scene_config
-
     cfg = task_scene_config(task, 0.002)
     traj = simulate_probe(task.truth, config=replace(cfg, kp=None, kd=None), seed=seed)
     scene_cfg = infer_scene_config(traj, box_size=cfg.box_size)
@@ -124,9 +116,7 @@ def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: d
     Raises:
         AmheError: unknown mode, or modes needing a belief without one.
     """
-    bad = set(modes) - set(MODES)
-    if bad:
-        raise AmheError(f"unknown mode {', '.join(sorted(bad))}: expected some of {', '.join(MODES)}")
+    check_names(modes, MODES, "mode")
     if belief is None and set(modes) - {"true"}:
         raise AmheError("baseline and adaptive modes need a belief")
     run_settings(task_name, modes[0], config, duration=duration)  # validate before forking

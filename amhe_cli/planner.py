@@ -26,7 +26,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
-from .errors import AmheError
+from .errors import AmheError, check_names
 from .gait import Gait
 from .params import ParameterSpace
 from .rollout import RolloutPool
@@ -74,10 +74,7 @@ class PlannerSettings:
 
     @classmethod
     def from_dict(cls, d: dict) -> "PlannerSettings":
-        names = {f.name for f in fields(cls)}
-        bad = set(d) - names
-        if bad:
-            raise AmheError(f"unknown planner setting {', '.join(sorted(bad))}: expected one of {', '.join(sorted(names))}")
+        check_names(d, {f.name for f in fields(cls)}, "planner setting")
         d = dict(d)
         if "noise" in d:
             d["noise"] = tuple(float(x) for x in d["noise"])

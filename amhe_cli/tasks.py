@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
-from .errors import AmheError
+from .errors import AmheError, check_names
 from .gait import GAITS, Gait
 from .io.quat import quat_to_yaw
 
@@ -58,10 +58,7 @@ class CostWeights:
 
     @classmethod
     def from_dict(cls, d: dict) -> "CostWeights":
-        names = {f.name for f in fields(cls)}
-        bad = set(d) - names
-        if bad:
-            raise AmheError(f"unknown cost weight {', '.join(sorted(bad))}: expected one of {', '.join(sorted(names))}")
+        check_names(d, {f.name for f in fields(cls)}, "cost weight")
         return cls(**{k: float(v) for k, v in d.items()})
 
 
