@@ -22,7 +22,7 @@ never sees the plant's model.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 
 import numpy as np
 
@@ -127,7 +127,6 @@ class Plan:
     refined: bool
     rollouts: int
     compute_time: float
-    info: dict = field(default_factory=dict)
 
 
 class Planner:
@@ -152,8 +151,7 @@ class Planner:
         self.gait: Gait = task.gait_spec
         self.pool = RolloutPool(scene.model, nthread)
         self._models = self.pool.models(s.samples)
-        self.params = space.mean0.copy()
-        self.set_params(self.params)
+        self.set_params(space.mean0)
         self.rng = np.random.default_rng(seed)
         self.knot_t = np.linspace(0.0, (s.horizon - 1) * s.dt, s.knots)
         self.basis = spline_basis(self.knot_t, np.arange(s.horizon) * s.dt)  # (T, K)
@@ -183,13 +181,6 @@ class Planner:
         values = np.asarray(values, dtype=float)
         for m in self._models:
             self.space.write(m, values)
-        self.params = values.copy()
-
-    def reset(self) -> None:
-        """Forget the warm start (mean to the reference, σ to the initial noise)."""
-        self.mean[:] = 0.0
-        self.sigma = self.sigma0.copy()
-        self._t_last = self._mode = None
 
     def _shift(self, t: float) -> None:
         if self._t_last is not None and t > self._t_last:
@@ -254,8 +245,7 @@ class Planner:
         w = mppi_weights(J, s.temperature)
         self.mean = np.einsum("n,nkj->kj", w, knots)
         controls = self._controls(self.mean[None], ref)[0]
-        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0,
-                    {"mode": mode, "best": float(np.min(J))})
+        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0)
 
 
 def planner_scene(config, dt: float) -> Scene:
