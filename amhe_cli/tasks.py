@@ -228,10 +228,6 @@ class Task:
             (box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
 
 
-def _t4_truth():
-    return {"box_mass": 4.0, "box_friction": 0.4}
-
-
 #: The tasks by name (DESIGN.md §6). The robot starts at the origin facing +x; the box just ahead of its head.
 TASKS = {
     "t1": Task("t1", box_start=(0.52, 0.0), goal=(2.0, 0.0)),
@@ -239,7 +235,7 @@ TASKS = {
                duration=60.0),
     "t3": Task("t3", box_start=(0.52, 0.0), goal=(3.0, 0.0), events=(Event("box_mass", 6.0, t=10.0),),
                duration=60.0),
-    "t4": Task("t4", box_start=(0.52, 0.0), goal=(2.5, 0.0), truth=_t4_truth(),
+    "t4": Task("t4", box_start=(0.52, 0.0), goal=(2.5, 0.0), truth={"box_mass": 4.0, "box_friction": 0.4},
                events=(Event("box_friction", 0.8, box_x=1.5),), duration=60.0),
     "t5": Task("t5", box_start=(0.45, -0.05), goal=(0.45, -0.55), gait="tripod", speed=0.0, push_side=-1,
                duration=20.0),
