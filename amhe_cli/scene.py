@@ -22,11 +22,14 @@ import mujoco
 import numpy as np
 
 from .errors import AmheError
+from .io.quat import quat_face_tilt
 from .trajectory import GO1_JOINTS, Trajectory
 
 #: Standing joint pose per leg (hip, thigh, calf) [rad], DESIGN.md §5.
 STAND_JOINTS = np.tile([0.0, 0.9, -1.8], 4)
 FOOT_RADIUS = 0.023
+#: A box tilted less than this from lying on a face counts as level when finding its floor [deg].
+LEVEL_TILT_DEG = 2.0
 FEET = ("FR_foot", "FL_foot", "RR_foot", "RL_foot")
 
 
@@ -301,7 +304,8 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
     * robot floor: median over the log of the lowest foot-sphere bottom, by
       forward kinematics of the recorded base pose and joint angles through
       *our* Go1 model (so a log robot with other leg lengths still stands on it);
-    * box floor: the box's median resting z minus half its height, with the box
+    * box floor: the box's median resting z (at rest and lying on a face, within
+      :data:`LEVEL_TILT_DEG`) minus half its height, with the box
       size from ``box_size`` (x, y, z edges [m]) or else ``base.box_size``;
       when no size was given and that floor misses the robot's by more than
       1 cm, the default size is wrong for this log: the box is taken as a cube
@@ -326,6 +330,12 @@ def infer_scene_config(traj: Trajectory, base: SceneConfig | None = None,
     robot_floor = fk_floor - feet_depth
     speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
     rest = speed <= max(0.01, np.percentile(speed, 30))
+    # a box leaning on the robot (pushed high on a rough floor) rests higher: keep samples on a face
+    level = quat_face_tilt(traj.box_quat) < np.radians(LEVEL_TILT_DEG)
+    if np.count_nonzero(rest & level) >= 10:
+        rest &= level
+    elif np.count_nonzero(level) >= 10:
+        rest = level
     rest_z = float(np.median(traj.box_pos[rest, 2]))
     box_floor = rest_z - size[2] / 2 - box_depth
     if box_size is None and abs(box_floor - robot_floor) > 0.01:

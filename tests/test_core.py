@@ -579,3 +579,25 @@ def test_scene_infers_another_box_height_from_the_robots_floor():
     # an explicit size is taken as given
     cfg = infer_scene_config(traj, box_size=(0.3, 0.3, 0.3))
     assert cfg.box_size == (0.3, 0.3, 0.3) and abs(cfg.floor_height) < 0.001
+
+
+def test_scene_floor_ignores_a_box_leaning_on_the_robot():
+    """A box tipped 8° onto the robot rests 3 cm higher: without the tilt check it read as a 0.435 m cube."""
+    import warnings as _w
+
+    from amhe_cli.io.quat import quat_face_tilt, quat_from_rotvec
+    from amhe_cli.probe import simulate_probe
+    from amhe_cli.scene import infer_scene_config
+    traj = simulate_probe({"box_mass": 3.0}, lunges=(0.05,))
+    lean = np.arange(len(traj)) >= len(traj) // 3
+    angle = np.radians(8.0)
+    traj.box_quat[lean] = quat_from_rotvec(np.array([0.0, angle, 0.0]))
+    traj.box_pos[lean, 2] = 0.19 * (np.cos(angle) + np.sin(angle))
+    traj.box_linvel[lean] = 0.0
+    assert np.degrees(quat_face_tilt(traj.box_quat[lean][0])) == pytest.approx(8.0)
+    # a box lying on another face, at any yaw, is level
+    assert quat_face_tilt(quat_from_rotvec(np.array([np.pi / 2, 0.0, 0.0]))) == pytest.approx(0.0, abs=1e-9)
+    with _w.catch_warnings():
+        _w.simplefilter("error")
+        cfg = infer_scene_config(traj)
+    assert cfg.box_size == (0.38, 0.38, 0.38) and abs(cfg.floor_height) < 0.002

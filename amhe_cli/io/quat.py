@@ -238,3 +238,22 @@ def quat_from_yaw(yaw: np.ndarray) -> np.ndarray:
     yaw = np.asarray(yaw, dtype=float)
     zeros = np.zeros_like(yaw)
     return np.stack([np.cos(0.5 * yaw), zeros, zeros, np.sin(0.5 * yaw)], axis=-1)
+
+
+def quat_face_tilt(q_wxyz: np.ndarray) -> np.ndarray:
+    """Tilt of a box from lying on any face [rad]: angle between world z and the nearest body axis.
+
+    A box at rest on one of its six faces has tilt 0 whatever its yaw; one
+    leaning on an edge has the lean angle.
+
+    Args:
+        q_wxyz: (..., 4) unit quaternions (body to world).
+
+    Returns:
+        (...) angles in [0, arccos(1/√3)].
+    """
+    q = np.asarray(q_wxyz, dtype=float)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    # world-z components of the body axes: the third row of the rotation matrix
+    row = np.stack([2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)], axis=-1)
+    return np.arccos(np.clip(np.abs(row).max(axis=-1), 0.0, 1.0))
