@@ -54,8 +54,10 @@ class MHESettings:
         iters: ``L_MHE``, sampling iterations per update.
         samples: ``B``, candidates per iteration.
         alpha: ``α``, learning rate of the mean/σ update (1 = jump to the elite average).
-        sigma_init: σ each update starts with, in prior-σ units of the space.
-        sigma_floor: ``σ_floor`` in prior-σ units: stop iterating once every σ is below it.
+        sigma_init: σ each update starts with, in units of each parameter's nominal
+            scale (``ParameterSpace.scale``, e.g. 3 kg, μ 0.5) — not of a belief's std,
+            which would freeze the tracker after a confident ``identify``.
+        sigma_floor: ``σ_floor`` in the same units: stop iterating once every σ is below it.
         pull: name -> σ_pull of ``W_p = diag(1/σ_pull²)`` toward ``p̂⁻``.
         clip: clip length [s] for multiple shooting, or None for one piece.
             0.1 s by measurement (benchmarks/mhe_accuracy.py, 6 seeds on
@@ -148,7 +150,7 @@ class MovingHorizonEstimator:
         self._cost: RolloutCost | None = None
         self.rng = np.random.default_rng(self.settings.seed)
         self.mean = space.mean0.copy()
-        self.std = space.std0 * self.settings.sigma_init
+        self.std = space.scale * self.settings.sigma_init
         pull = np.empty(space.dim)
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
@@ -189,8 +191,8 @@ class MovingHorizonEstimator:
         prev = self.mean.copy()
         self._cost.set_prior(prev, self.pull_std)
         mu = prev.copy()
-        sigma = self.space.std0 * s.sigma_init
-        floor = self.space.std0 * s.sigma_floor
+        sigma = self.space.scale * s.sigma_init
+        floor = self.space.scale * s.sigma_floor
         it = 0
         for it in range(1, s.iters + 1):
             P = mu + sigma * self.rng.standard_normal((s.samples, mu.size))

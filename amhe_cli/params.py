@@ -108,6 +108,8 @@ class ParameterSpace:
         labels: (d,) flat labels, ``box_inertia_0`` etc. for vectors.
         mean0: (d,) prior mean ``p0``; ``std0``: (d,) prior std; ``lower``, ``upper``: (d,) bounds
             (all in the flat coordinates: inertia as shape ratios).
+        scale: (d,) each coordinate's nominal prior std, whatever ``prior_std`` says: the
+            step scale of samplers that must keep moving however confident the prior is.
 
     If ``box_inertia`` is not free it follows the mass: the prior moments are
     scaled by ``mass / prior mass`` (uniform density, same shape), which keeps a
@@ -142,7 +144,7 @@ class ParameterSpace:
                 self.prior_values["box_mass"][0] / nominal["box_mass"][0])
         prior_std = prior_std or {}
         self.labels: list[str] = []
-        mean0, std0, lo, hi, self._slices = [], [], [], [], {}
+        mean0, std0, scale, lo, hi, self._slices = [], [], [], [], [], {}
         for name in self.free:
             p = PARAMETERS[name]
             s = len(mean0)
@@ -154,16 +156,19 @@ class ParameterSpace:
                                  / self.prior_values[name])
                 else:
                     std0 += [INERTIA_RATIO_STD] * 3
+                scale += [INERTIA_RATIO_STD] * 3
                 lo += [INERTIA_RATIO_BOUNDS[0]] * 3
                 hi += [INERTIA_RATIO_BOUNDS[1]] * 3
             else:
                 mean0 += list(self.prior_values[name])
                 std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, p.prior_std), dtype=float), (p.size,)))
+                scale += list(p.prior_std)
                 lo += list(p.lower)
                 hi += list(p.upper)
             self.labels += [name] if p.size == 1 else [f"{name}_{i}" for i in range(p.size)]
         self.mean0 = np.array(mean0)
         self.std0 = np.array(std0)
+        self.scale = np.array(scale)
         self.lower = np.array(lo)
         self.upper = np.array(hi)
         self.dim = len(self.labels)

@@ -97,7 +97,8 @@ def test_wp_pull_limits_a_single_update(step_log):
 
 def test_tracks_a_friction_step(step_log):
     scene = Scene(SceneConfig())
-    space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+    # a confident (and wrong) starting belief: the sampling σ must not shrink with it
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior_std={"box_mass": 0.05, "box_friction": 0.01})
     mu = step_log.meta["truth_series"]["box_friction"]
     t_step = step_log.t[np.argmax(mu > 0.45)]
     with MovingHorizonEstimator(scene, space, MHESettings(pull={"box_mass": 2.0, "box_friction": 0.3})) as mhe:
