@@ -294,7 +294,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             box_path.append([t, *box_xy])
             ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"])
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
-                                               v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd)))
+                                               v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
+                                               box_quat=q[sc.box_qpos[3:]])))
             last = len(plan.controls) - 1
             if s.realtime:  # while the planner computed, the plant ran on with the previous plan's next targets
                 lag = int(np.ceil(plan.compute_time / pdt))

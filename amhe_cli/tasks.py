@@ -51,6 +51,7 @@ class CostWeights:
     lateral: float = 40.0
     height: float = 200.0
     tilt: float = 50.0
+    box_tilt: float = 300.0  #: a box pushed above μ·h > half its depth tips onto the robot and jams (T4 at μ 0.8)
     angvel: float = 0.5
     effort: float = 0.2
     fall: float = 1000.0
@@ -176,7 +177,7 @@ class Task:
     # -- cost ------------------------------------------------------------------
     def stage_cost(self, base_pos: np.ndarray, base_quat: np.ndarray, base_vel: np.ndarray, base_angvel: np.ndarray,
                    box_pos: np.ndarray, ctrl: np.ndarray, ref: np.ndarray, cmd: dict, tau: np.ndarray | float = 0.0,
-                   floor: float = 0.0) -> np.ndarray:
+                   floor: float = 0.0, box_quat: np.ndarray | None = None) -> np.ndarray:
         """Running cost of states, vectorised over any leading axes.
 
         The box's reference moves from where the box was at the cycle start
@@ -189,7 +190,8 @@ class Task:
             base_angvel: (..., 3) body-frame angular velocity [rad/s];
             box_pos: (..., 3) [m]; ctrl, ref: (..., 12) joint targets and gait reference [rad];
             cmd: :meth:`command` output; tau: time into the horizon [s],
-            broadcastable to the leading axes; floor: the robot's floor height [m].
+            broadcastable to the leading axes; floor: the robot's floor height [m];
+            box_quat: (..., 4) the box's orientation, for the box-tilt term (None: no term).
         Returns:
             (...) cost per state.
         """
@@ -209,6 +211,9 @@ class Task:
         c += w.angvel * np.sum(base_angvel[..., :2] ** 2, axis=-1)
         c += w.effort * np.sum((ctrl - ref) ** 2, axis=-1)
         c += w.fall * (height < self.unsafe_height)
+        if box_quat is not None:
+            _, bx, by, _ = np.moveaxis(box_quat, -1, 0)
+            c += w.box_tilt * 2 * (bx * bx + by * by)
         return c
 
     def box_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
