@@ -36,7 +36,7 @@ from typing import Callable
 import numpy as np
 
 from .belief import Belief, to_plain
-from .errors import AmheError
+from .errors import AmheError, check_names
 from .io.quat import quat_to_yaw
 from .io.writer import write_mcap
 from .mhe import MHESettings, MovingHorizonEstimator, Update
@@ -49,8 +49,12 @@ from .tasks import Task
 from .trajectory import Trajectory
 
 MODES = ("true", "baseline", "adaptive")
-#: Parameters a belief gives the planner and the MHE estimates.
+#: Parameters a belief gives the planner.
 RUN_PARAMS = ("box_mass", "box_inertia", "box_friction")
+#: Parameters the online MHE frees by default (as ``mhe-replay``); the inertia follows the mass.
+#: Pushing a box straight hardly excites its inertia, and three more free coordinates made
+#: every update noisier in mass and friction.
+MHE_PARAMS = ("box_mass", "box_friction")
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)
 
@@ -130,6 +134,7 @@ class RunSettings:
             planner's dt); in realtime mode the planner's own compute time.
         seed: seeds the planner's and the estimator's sampling.
         threads: rollout threads of the planner (the MHE uses one).
+        mhe_params: parameters the MHE frees (a subset of :data:`RUN_PARAMS`).
         kp, kd: joint PD gains of the position servos [N·m/rad], [N·m·s/rad],
             the same in plant and planner (they are the controller's command
             interface, not a plant secret). 100/4 by measurement: with the
@@ -147,10 +152,14 @@ class RunSettings:
     threads: int | None = None
     kp: float = 100.0
     kd: float = 4.0
+    mhe_params: tuple = MHE_PARAMS
 
     def check(self) -> None:
         if self.mode not in MODES:
             raise AmheError(f"unknown mode {self.mode!r}: expected one of {', '.join(MODES)}")
+        check_names(self.mhe_params, RUN_PARAMS, "MHE parameter")
+        if not self.mhe_params:
+            raise AmheError(f"mhe_params is empty: expected some of {', '.join(RUN_PARAMS)}")
         self.planner.check()
         self.mhe.check()
         if self.cycle < self.planner.dt - 1e-12:
@@ -208,6 +217,15 @@ def _belief_std(belief: Belief | None) -> dict | None:
     return None if belief is None else {k: v for k, v in belief.std.items() if v and k in RUN_PARAMS}
 
 
+def _to_planner(update: Update, mspace: ParameterSpace, space: ParameterSpace) -> tuple[np.ndarray, np.ndarray]:
+    """An MHE update in the planner's coordinates: (d,) values and stds (0 where the MHE holds it fixed)."""
+    values = space.vector(mspace.values(update.mean))
+    std = np.zeros(space.dim)
+    for name, sl in mspace.slices().items():
+        std[space.slices()[name]] = update.std[sl]
+    return values, std
+
+
 def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
                  truth: dict) -> tuple[Planner, ParameterSpace]:
     """The planner of a run and its parameter space.
@@ -254,7 +272,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     estimator = None
     if s.mode == "adaptive":
         mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
-        mspace = ParameterSpace(mscene, free=RUN_PARAMS, prior=space.values(space.mean0), prior_std=_belief_std(belief))
+        mspace = ParameterSpace(mscene, free=s.mhe_params, prior=space.values(space.mean0),
+                                prior_std=_belief_std(belief))
         mhe_settings = replace(s.mhe, seed=s.seed)
         estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
     pscene = planner.scene
@@ -328,7 +347,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 if res is not None:
                     pending = False
                     if not res.skipped:
-                        swap(res.mean, res.std, now)
+                        swap(*_to_planner(res, estimator.mhe.space, space), now)
                 messages += estimator.take_errors()
                 if now >= next_update - 1e-9:
                     if estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):

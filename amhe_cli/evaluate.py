@@ -30,7 +30,7 @@ from .probe import simulate_probe
 from .scene import Scene, infer_scene_config
 from .tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "kp", "kd", "cycle", "task"}
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -53,6 +53,12 @@ def load_config(path: str | os.PathLike | None) -> dict:
     return data
 
 
+def _names(value) -> tuple:
+    """``"a,b"`` or ``[a, b]`` -> ``("a", "b")``."""
+    items = value.split(",") if isinstance(value, str) else list(value or [])
+    return tuple(str(x).strip() for x in items if str(x).strip())
+
+
 def run_settings(task_name: str, mode: str, config: dict | None = None, seed: int = 0, realtime: bool = False,
                  threads: int | None = None, duration: float | None = None) -> tuple[Task, RunSettings]:
     """The task and settings of one run from a config dict (see :func:`load_config`).
@@ -73,7 +79,8 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     check_names(mhe, MHESettings.__dataclass_fields__, "mhe setting")
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(config.get("planner") or {}),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
-                           **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config})
+                           **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config},
+                           **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))
     settings.check()
     return task, settings
 

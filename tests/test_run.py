@@ -365,6 +365,29 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
     np.testing.assert_array_equal(a.traj.ctrl, b.traj.ctrl)
 
 
+def test_mhe_update_reaches_the_planner_with_inertia_following_mass():
+    from amhe_cli.closed_loop import _to_planner, task_scene_config
+    from amhe_cli.mhe import Update
+    from amhe_cli.params import ParameterSpace
+    from amhe_cli.scene import Scene
+
+    task = get_task("t4")
+    planner, space = make_planner(task, small_settings("baseline"), belief(5.0, 0.3), {})
+    try:
+        mspace = ParameterSpace(Scene(task_scene_config(task, 0.002, 100.0, 4.0)), free=("box_mass", "box_friction"),
+                                prior=space.values(space.mean0))
+        up = Update(1.0, np.array([6.0, 0.7]), np.array([0.2, 0.05]), 0.0, 3, 0.01, False)
+        values, std = _to_planner(up, mspace, space)
+    finally:
+        planner.close()
+    got = space.values(values)
+    assert got["box_mass"] == pytest.approx(6.0) and got["box_friction"] == pytest.approx(0.7)
+    np.testing.assert_allclose(got["box_inertia"], space.values(space.mean0)["box_inertia"] * 6.0 / 5.0)
+    sl = space.slices()
+    assert std[sl["box_mass"]][0] == 0.2 and std[sl["box_friction"]][0] == 0.05
+    np.testing.assert_array_equal(std[sl["box_inertia"]], 0.0)  # held by the MHE, not estimated
+
+
 def test_estimator_failure_never_stops_the_controller(monkeypatch):
     def broken(self, *args, **kwargs):
         raise RuntimeError("injected estimator fault")
@@ -420,6 +443,8 @@ def test_run_bad_config(capsys, tmp_path):
     one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), "plannr")
     cfg.write_text("planner: {sample: 8}\n")
     one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), "sample")
+    cfg.write_text("mhe_params: box_mass,box_colour\n")
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), "box_colour")
     cfg.write_text("planner: {samples: 8, horizon: 20}\n")
     one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--duration", "0",
                         "--out", tmp_path / "r.mcap"), "--duration")
