@@ -515,7 +515,8 @@ def _load_belief(path: str | None) -> Belief | None:
 @click.option("--mode", type=click.Choice(["true", "baseline", "adaptive"]), default="adaptive", show_default=True,
               help="Planner's parameters: the truth, a fixed belief, or the belief re-estimated online by the MHE.")
 @click.option("--belief", default=None, type=click.Path(), help="Starting belief YAML (default: probe in sim first).")
-@click.option("--config", default=None, type=click.Path(), help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task overrides.")
+@click.option("--config", default=None, type=click.Path(),
+              help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task overrides.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--duration", default=None, type=float, help="Time limit [s] (default: the task's).")
 @click.option("--realtime", is_flag=True, help="Run the plant on the wall clock (default: lock-step).")

@@ -263,6 +263,23 @@ def test_stage_cost_penalises_a_fallen_base():
     np.testing.assert_allclose(c, [nominal, fallen])
 
 
+def test_stage_cost_penalises_a_tipped_box_not_its_yaw():
+    from amhe_cli.io.quat import quat_from_rotvec
+    task = get_task("t4")
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
+    quat, zero = np.array([1.0, 0, 0, 0]), np.zeros(3)
+    box = np.array([*task.box_start, 0.19])
+
+    def cost(box_quat):
+        return float(task.stage_cost(np.array([0.0, 0.0, BASE_HEIGHT]), quat, zero, zero, box, STAND_JOINTS,
+                                     STAND_JOINTS, cmd, box_quat=box_quat))
+
+    level = cost(quat)
+    assert cost(quat_from_rotvec(np.array([0.0, 0.0, 0.7]))) == pytest.approx(level)  # yawed, still flat
+    tipped = cost(quat_from_rotvec(np.array([0.0, np.radians(8.0), 0.0])))
+    assert tipped - level == pytest.approx(task.weights.box_tilt * (1 - np.cos(np.radians(8.0))), rel=1e-9)
+
+
 # -- modes: only the planner's parameters differ ---------------------------------------
 
 def test_modes_differ_only_in_planner_parameters():
