@@ -36,6 +36,9 @@ from .io.quat import quat_to_yaw
 
 #: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
 HEAD_REACH = 0.28
+#: Largest yaw rate the task commands [rad/s]: the calibrated trot turns as asked up to 0.45
+#: (benchmarks/gait_calibration.py) and twists out of its stride at 0.6.
+MAX_YAW_RATE = 0.45
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
 BASE_HEIGHT = 0.265
 
@@ -173,7 +176,7 @@ class Task:
         yaw = float(np.arctan2(d[1], d[0]))
         err = float(np.angle(np.exp(1j * (yaw - base_yaw))))
         return {"target": target, "direction": d, "waypoint": waypoint, "yaw": yaw, "speed": self.speed * slow,
-                "omega": float(np.clip(1.5 * err, -0.6, 0.6)), "box": np.asarray(box_xy, float).copy(),
+                "omega": float(np.clip(1.5 * err, -MAX_YAW_RATE, MAX_YAW_RATE)), "box": np.asarray(box_xy, float).copy(),
                 "box_speed": box_speed}
 
     # -- cost ------------------------------------------------------------------

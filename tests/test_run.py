@@ -170,7 +170,8 @@ def test_trot_reference_in_place_keeps_feet_under_hips():
 
 
 def test_trot_forward_speed_moves_stance_foot_backward():
-    trot = GAITS["trot"]
+    from dataclasses import replace
+    trot = replace(GAITS["trot"], stride_gain=1.0, stride_deadband=0.0, turn_gain=1.0)  # kinematic
     v = 0.3
     step = v * trot.duty * trot.period
     # FR is in stance over [0, 0.25) s of each cycle
@@ -186,6 +187,23 @@ def test_trot_forward_speed_moves_stance_foot_backward():
     assert np.all(np.diff(xs) > 0)
     assert zs[1] == pytest.approx(-STAND_HEIGHT + trot.step_height, abs=1e-6)
     assert not np.allclose(trot.reference(T, v=v), trot.reference(T, v=0.0))
+
+
+def test_calibrated_trot_strides_longer_and_stands_still_at_zero():
+    from amhe_cli.gait import STRIDE_SMOOTH
+    trot = GAITS["trot"]
+    assert trot.stride_gain < 1 and trot.stride_deadband > 0  # the servos realise less than the kinematics
+    ts = np.linspace(0.001, trot.duty * trot.period - 0.001, 30)
+    v = 0.2
+    x, _ = foot_xz(trot.reference(ts, v=v), "FR")
+    u = v / trot.stride_gain + trot.stride_deadband * np.tanh(v / STRIDE_SMOOTH)
+    assert x[0] - x[-1] == pytest.approx(u * trot.duty * trot.period, abs=2e-3)
+    # a zero command is a trot in place: no stride at all
+    x0, _ = foot_xz(trot.reference(ts, v=0.0), "FR")
+    np.testing.assert_allclose(x0, 0.0, atol=1e-9)
+    # a yaw-rate command lengthens the outer (right, for a left turn) legs' strides
+    xr, _ = foot_xz(trot.reference(ts, v=v, omega=0.3), "FR")
+    assert xr[0] - xr[-1] > x[0] - x[-1]
 
 
 # -- tasks ---------------------------------------------------------------------------
