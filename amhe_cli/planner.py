@@ -200,12 +200,11 @@ class Planner:
         sc = self.scene
         qpos = states[..., self._qpos]
         qvel = states[..., self._qvel]
-        floor = sc.config.floor_height if sc.config.robot_floor_height is None else sc.config.robot_floor_height
         box = qpos[..., sc.box_qpos[:3]]
         tau = (np.arange(self.settings.horizon) + 1) * self.settings.dt
         J = self.task.stage_cost(qpos[..., sc.base_qpos[:3]], qpos[..., sc.base_qpos[3:]],
                                  qvel[..., sc.base_qvel[:3]], qvel[..., sc.base_qvel[3:]], box, u, ref[None], cmd,
-                                 tau, floor, qpos[..., sc.box_qpos[3:]]).mean(axis=1)
+                                 tau, sc.config.robot_floor, qpos[..., sc.box_qpos[3:]]).mean(axis=1)
         J += self.task.terminal_cost(box[:, -1], cmd, tau[-1])
         return np.where(np.isfinite(J), J, np.inf)
 

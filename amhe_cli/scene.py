@@ -78,6 +78,11 @@ class SceneConfig:
     kp: tuple[float, ...] | None = None
     kd: tuple[float, ...] | None = None
 
+    @property
+    def robot_floor(self) -> float:
+        """z of the floor under the robot's feet [m] (``robot_floor_height``, else ``floor_height``)."""
+        return self.floor_height if self.robot_floor_height is None else self.robot_floor_height
+
     def inertia(self, mass: float | None = None) -> np.ndarray:
         """(3,) principal moments [kg·m²]: explicit, or a uniform box of ``mass``."""
         m = self.box_mass if mass is None else mass
@@ -195,9 +200,7 @@ class Scene:
         m = self.model
         qpos = m.qpos0.copy()
         qpos[self.joint_qpos] = STAND_JOINTS
-        robot_floor = self.config.floor_height if self.config.robot_floor_height is None \
-            else self.config.robot_floor_height
-        qpos[self.base_qpos[:3]] = [x, y, robot_floor + 0.288]
+        qpos[self.base_qpos[:3]] = [x, y, self.config.robot_floor + 0.288]
         qpos[self.base_qpos[3:]] = [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
         qpos[self.box_qpos[:3]] = [box_xy[0], box_xy[1], self.config.floor_height + self.config.box_size[2] / 2]
         qpos[self.box_qpos[3:]] = [1, 0, 0, 0]
@@ -232,8 +235,7 @@ def resting_offsets(scene: "Scene") -> tuple[float, float]:
     d.ctrl[:] = STAND_JOINTS
     mujoco.mj_step(m, d, nstep=int(1.5 / m.opt.timestep))
     cfg = scene.config
-    robot_floor = cfg.floor_height if cfg.robot_floor_height is None else cfg.robot_floor_height
-    feet = float(np.mean(scene.foot_bottoms(d.qpos[None])[0]) - robot_floor)
+    feet = float(np.mean(scene.foot_bottoms(d.qpos[None])[0]) - cfg.robot_floor)
     box = float(d.qpos[scene.box_qpos[2]] - cfg.box_size[2] / 2 - cfg.floor_height)
     return feet, box
 
@@ -261,7 +263,7 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
     world = spec.worldbody
     # The robot's floor: an infinite plane at floor_height, colliding with the robot only.
     world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 0.05],
-                   pos=[0, 0, cfg.floor_height if cfg.robot_floor_height is None else cfg.robot_floor_height],
+                   pos=[0, 0, cfg.robot_floor],
                    contype=1, conaffinity=2, friction=[1.0, 0.005, 0.0001],
                    rgba=[0.8, 0.8, 0.8, 1])
     # Box-floor regions: geoms that collide with nothing dynamically; contacts come from pairs only.
