@@ -201,10 +201,8 @@ class Task:
             (...) cost per state.
         """
         w = self.weights
-        _, qx, qy, _ = np.moveaxis(base_quat, -1, 0)
         yaw = quat_to_yaw(base_quat)
-        tilt = 2 * (qx * qx + qy * qy)  # 1 - (body z)·(world z)
-        c = w.box * np.sum((box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
+        c = self._box_term(box_pos, cmd, tau)
         c += w.waypoint * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
         heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
         if not self.push_side:
@@ -212,14 +210,17 @@ class Task:
         c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
         c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]) ** 2
         height = base_pos[..., 2] - floor
-        c += w.height * (height - BASE_HEIGHT) ** 2 + w.tilt * tilt
+        c += w.height * (height - BASE_HEIGHT) ** 2 + w.tilt * _tilt(base_quat)
         c += w.angvel * np.sum(base_angvel[..., :2] ** 2, axis=-1)
         c += w.effort * np.sum((ctrl - ref) ** 2, axis=-1)
         c += w.fall * (height < self.unsafe_height)
         if box_quat is not None:
-            _, bx, by, _ = np.moveaxis(box_quat, -1, 0)
-            c += w.box_tilt * 2 * (bx * bx + by * by)
+            c += w.box_tilt * _tilt(box_quat)
         return c
+
+    def _box_term(self, box_pos: np.ndarray, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
+        """(...) ``w_box`` × squared distance of the box to its reference, per (10 cm)²."""
+        return self.weights.box * np.sum((box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
 
     def box_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
         """(..., 2) where the box should be ``tau`` [s] into the horizon: moving toward the target at the
@@ -234,8 +235,13 @@ class Task:
 
     def terminal_cost(self, box_pos: np.ndarray, cmd: dict, tau: float) -> np.ndarray:
         """(...) extra cost of the box's position at the end of a horizon ``tau`` [s] long."""
-        return self.weights.terminal * self.weights.box * np.sum(
-            (box_pos[..., :2] - self.box_reference(cmd, tau)) ** 2, axis=-1) / 0.01
+        return self.weights.terminal * self._box_term(box_pos, cmd, tau)
+
+
+def _tilt(quat: np.ndarray) -> np.ndarray:
+    """(...) ``1 − cos`` of the angle between a body's z axis and world z, for (..., 4) (w, x, y, z) quaternions."""
+    _, x, y, _ = np.moveaxis(quat, -1, 0)
+    return 2 * (x * x + y * y)
 
 
 #: The tasks by name (DESIGN.md §6). The robot starts at the origin facing +x; the box just ahead of its head.

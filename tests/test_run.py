@@ -262,17 +262,23 @@ def test_box_reference_never_passes_target():
     assert task.box_reference(cmd, 0.1)[0] - box[0] == pytest.approx(0.1 * cmd["box_speed"])
 
 
+UPRIGHT = np.array([1.0, 0, 0, 0])
+
+
+def still_cost(task, height=BASE_HEIGHT, box_quat=None):
+    """Stage cost of the robot standing still at the origin at ``height``, the box resting at its start."""
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
+    zero = np.zeros(3)
+    return float(task.stage_cost(np.array([0.0, 0.0, height]), UPRIGHT, zero, zero,
+                                 np.array([*task.box_start, 0.19]), STAND_JOINTS, STAND_JOINTS, cmd,
+                                 box_quat=box_quat))
+
+
 def test_stage_cost_penalises_a_fallen_base():
     task = get_task("t1")
     cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
-    quat, zero = np.array([1.0, 0, 0, 0]), np.zeros(3)
-    box = np.array([*task.box_start, 0.19])
-
-    def cost(height):
-        return float(task.stage_cost(np.array([0.0, 0.0, height]), quat, zero, zero, box, STAND_JOINTS,
-                                     STAND_JOINTS, cmd))
-
-    nominal, fallen = cost(BASE_HEIGHT), cost(0.1)
+    quat, box = UPRIGHT, np.array([*task.box_start, 0.19])
+    nominal, fallen = still_cost(task), still_cost(task, 0.1)
     assert fallen > nominal + task.weights.fall
     # vectorised over leading axes
     c = task.stage_cost(np.array([[0, 0, BASE_HEIGHT], [0, 0, 0.1]]), np.tile(quat, (2, 1)), np.zeros((2, 3)),
@@ -284,17 +290,9 @@ def test_stage_cost_penalises_a_fallen_base():
 def test_stage_cost_penalises_a_tipped_box_not_its_yaw():
     from amhe_cli.io.quat import quat_from_rotvec
     task = get_task("t4")
-    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)
-    quat, zero = np.array([1.0, 0, 0, 0]), np.zeros(3)
-    box = np.array([*task.box_start, 0.19])
-
-    def cost(box_quat):
-        return float(task.stage_cost(np.array([0.0, 0.0, BASE_HEIGHT]), quat, zero, zero, box, STAND_JOINTS,
-                                     STAND_JOINTS, cmd, box_quat=box_quat))
-
-    level = cost(quat)
-    assert cost(quat_from_rotvec(np.array([0.0, 0.0, 0.7]))) == pytest.approx(level)  # yawed, still flat
-    tipped = cost(quat_from_rotvec(np.array([0.0, np.radians(8.0), 0.0])))
+    level = still_cost(task, box_quat=UPRIGHT)
+    assert still_cost(task, box_quat=quat_from_rotvec(np.array([0.0, 0.0, 0.7]))) == pytest.approx(level)  # yawed
+    tipped = still_cost(task, box_quat=quat_from_rotvec(np.array([0.0, np.radians(8.0), 0.0])))
     assert tipped - level == pytest.approx(task.weights.box_tilt * (1 - np.cos(np.radians(8.0))), rel=1e-9)
 
 
