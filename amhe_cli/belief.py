@@ -83,6 +83,21 @@ class Belief:
         return path
 
     @classmethod
+    def from_identify(cls, result, space, scene_config, provenance: dict) -> "Belief":
+        """The belief an identification leaves: estimate, std, correlation and cost of ``result``.
+
+        Args:
+            result: an :class:`~amhe_cli.identify.IdentifyResult` over ``space``
+                (a :class:`~amhe_cli.params.ParameterSpace`).
+            scene_config: the :class:`~amhe_cli.scene.SceneConfig` the values refer to.
+            provenance: where the estimate came from (command, log, settings …).
+        """
+        s = result.summary()
+        return cls(values=to_plain(space.values(result.estimate)), std=s["std"], free=list(space.free),
+                   labels=s["labels"], correlation=s["correlation"], cost=s["cost"],
+                   scene=scene_config.to_dict(), provenance=provenance)
+
+    @classmethod
     def load(cls, path: str | os.PathLike) -> "Belief":
         """Read a belief YAML.
 

@@ -19,7 +19,7 @@ import click
 import numpy as np
 
 from . import __version__
-from .belief import Belief, to_plain
+from .belief import Belief
 from .errors import AmheError
 from .identify import IdentifyResult, IdentifySettings, identify, settings_dict
 from .params import PARAMETERS, parse_names
@@ -104,11 +104,9 @@ def _fmt(v) -> str:
 
 def belief_from_result(result: IdentifyResult, problem: Problem, command: str, log: str) -> Belief:
     """A :class:`Belief` holding an identification result and its provenance."""
-    s = result.summary()
-    return Belief(
-        values=to_plain(problem.space.values(result.estimate)), std=s["std"], free=list(problem.space.free), labels=s["labels"],
-        correlation=s["correlation"], cost=s["cost"], scene=problem.scene.config.to_dict(),
-        provenance={
+    return Belief.from_identify(
+        result, problem.space, problem.scene.config,
+        {
             "command": command, "amhe_version": __version__, "log": str(log),
             "sha256": problem.traj.meta.get("sha256"), "topics": problem.traj.meta.get("topics"),
             "prior": problem.prior_source, "settings": settings_dict(result.settings),

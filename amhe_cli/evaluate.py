@@ -97,12 +97,8 @@ def probe_belief(task: Task, seed: int = 0, threads: int | None = None, progress
     scene = Scene(scene_cfg)
     space = ParameterSpace(scene, free=RUN_PARAMS)
     res = identify(traj, scene, space, IdentifySettings(seed=seed), progress=progress, nthread=threads)
-    summary = res.summary()
-    return Belief(values=to_plain(space.values(res.estimate)), std=summary["std"], free=list(RUN_PARAMS),
-                  labels=summary["labels"], correlation=summary["correlation"], cost=summary["cost"],
-                  scene=scene_cfg.to_dict(),
-                  provenance={"command": "run (probe in sim, then identify)", "seed": seed,
-                              "truth": to_plain(dict(task.truth))})
+    return Belief.from_identify(res, space, scene_cfg, {"command": "run (probe in sim, then identify)", "seed": seed,
+                                                         "truth": to_plain(dict(task.truth))})
 
 
 def _one(args) -> dict:
