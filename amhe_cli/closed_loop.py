@@ -326,14 +326,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 rows = plan.controls[:cycle_steps]
             for row in rows:
                 plant.step(row)
-                bx = float(plant.data.qpos[sc.box_qpos[0]])
-                for ev in list(pending_events):
-                    if ev.due(float(plant.data.time), bx):
-                        plant.set_param(ev.param, ev.value)
-                        pending_events.remove(ev)
-                        messages.append(f"t={plant.data.time:.2f} s: plant event {ev.param} -> {ev.value}")
-                        if s.mode == "true":
-                            swap(space.vector(plant.truth_values), space.std0 * 0, float(plant.data.time))
+                for ev in plant.fire_due(pending_events):
+                    messages.append(f"t={plant.data.time:.2f} s: plant event {ev.param} -> {ev.value}")
+                    if s.mode == "true":
+                        swap(space.vector(plant.truth_values), np.zeros(space.dim), float(plant.data.time))
             now = float(plant.data.time)
             if plant.data.qpos[sc.base_qpos[2]] < task.fall_height:
                 fell = True
@@ -399,7 +395,7 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
         raise AmheError(f"{csv_path} exists: pass --force to overwrite it")
     est_t, est_v, est_s = result.estimates
     labels = [x for lab in result.labels for x in (lab, f"{lab}_std")]
-    values = np.stack([np.stack([est_v[:, i], est_s[:, i]], axis=1) for i in range(est_v.shape[1])], axis=1)
+    values = np.stack([est_v, est_s], axis=-1)  # (n, d, 2): value, std per label
     meta = {
         TRUTH_RECORD: {k: json.dumps(to_plain(v)) for k, v in result.traj.meta["truth"].items()},
         "amhe_run": {"task": json.dumps(to_plain(task.to_dict())), "mode": settings.mode, "seed": str(settings.seed),

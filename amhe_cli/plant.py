@@ -66,6 +66,21 @@ class SimPlant:
             self._log["friction"].append(self.truth_values["box_friction"])
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
 
+    def fire_due(self, events: list) -> list:
+        """Apply the task events of ``events`` that are due now (time or box x) to the plant.
+
+        Args:
+            events: pending :class:`~amhe_cli.tasks.Event` objects; the fired ones are removed.
+        Returns:
+            the fired events, in order.
+        """
+        t, box_x = float(self.data.time), float(self.data.qpos[self.scene.box_qpos[0]])
+        fired = [ev for ev in events if ev.due(t, box_x)]
+        for ev in fired:
+            self.set_param(ev.param, ev.value)
+            events.remove(ev)
+        return fired
+
     def set_param(self, name: str, value) -> None:
         """Change a true parameter mid-run (a task event: mass switch, friction change)."""
         self.truth[name] = value

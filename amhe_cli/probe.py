@@ -24,6 +24,7 @@ from .params import ParameterSpace
 from .plant import SimPlant
 from .scene import Scene, SceneConfig
 from .maneuver import lunge_schedule
+from .tasks import Event
 from .trajectory import Trajectory
 from .uncertainty import Curvature, curvature
 
@@ -80,10 +81,9 @@ def simulate_probe(truth: dict, config: SceneConfig | None = None, seed: int = 0
                                       cfg.floor_height + cfg.box_size[2] / 2]
     qpos[plant.scene.box_qpos[3:]] = [np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]
     plant.reset(qpos, qvel)
+    events = [] if friction_step is None else [Event("box_friction", friction_step[1], box_x=friction_step[0])]
     for target in lunge_schedule(plant.control_steps * plant.record_dt, lunges=lunges, **(schedule or {})):
-        if friction_step is not None and plant.data.qpos[plant.scene.box_qpos[0]] > friction_step[0] \
-                and plant.truth_values["box_friction"] != friction_step[1]:
-            plant.set_param("box_friction", friction_step[1])
+        plant.fire_due(events)
         plant.step(target)
     return plant.trajectory()
 
