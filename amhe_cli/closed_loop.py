@@ -213,6 +213,15 @@ def task_scene_config(task: Task, dt: float, kp: float = 55.0, kd: float = 3.0) 
                        kp=(float(kp),) * 12, kd=(float(kd),) * 12)
 
 
+def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01) -> SimPlant:
+    """The task's sim plant (2 ms, true parameters, PD gains ``kp``/``kd``), the robot standing at the
+    origin and the box at its start; each target is held ``control_period`` [s]."""
+    plant = SimPlant(task_scene_config(task, 0.002, kp, kd), truth=task.truth, record_dt=0.002,
+                     control_period=control_period)
+    plant.reset(*plant.scene.standing_state(box_xy=task.box_start))
+    return plant
+
+
 def _belief_std(belief: Belief | None) -> dict | None:
     return None if belief is None else {k: v for k, v in belief.std.items() if v and k in RUN_PARAMS}
 
@@ -264,9 +273,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     s = settings or RunSettings()
     s.check()
     pdt = s.planner.dt
-    plant = SimPlant(task_scene_config(task, 0.002, s.kp, s.kd), truth=task.truth, record_dt=0.002, control_period=pdt)
-    qpos, qvel = plant.scene.standing_state(box_xy=task.box_start)
-    plant.reset(qpos, qvel)
+    plant = make_plant(task, s.kp, s.kd, pdt)
 
     planner, space = make_planner(task, s, belief, plant.truth_values)
     estimator = None

@@ -23,14 +23,10 @@ import numpy as np
 
 
 def walk(gait, v, omega, kp, kd, seconds=5.0):
-    from amhe_cli.closed_loop import task_scene_config
+    from amhe_cli.closed_loop import make_plant
     from amhe_cli.io.quat import quat_to_yaw
-    from amhe_cli.plant import SimPlant
     from amhe_cli.tasks import get_task
-    task = get_task("t1", box_start=(9.0, 9.0))  # box far out of the way
-    plant = SimPlant(task_scene_config(task, 0.002, kp, kd), truth=task.truth, record_dt=0.002, control_period=0.01)
-    q, qd = plant.scene.standing_state(box_xy=task.box_start)
-    plant.reset(q, qd)
+    plant = make_plant(get_task("t1", box_start=(9.0, 9.0)), kp, kd)  # box far out of the way
     sc = plant.scene
     poses = []
     for k in range(int(seconds / 0.01)):
