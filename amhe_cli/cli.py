@@ -618,8 +618,6 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
     click.echo(f"per-run rows: {out_path}")
 
 
-
-
 def parse_smooth(text: str) -> int | str:
     """``--smooth`` value: ``"auto"`` or a non-negative sample count."""
     if text == "auto":

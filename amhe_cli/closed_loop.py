@@ -43,7 +43,7 @@ from .mhe import MHESettings, MovingHorizonEstimator, Update
 from .params import ParameterSpace
 from .plant import SimPlant
 from .probe import TRUTH_RECORD
-from .planner import Planner, PlannerSettings, planner_scene
+from .planner import Planner, PlannerSettings
 from .scene import Scene, SceneConfig
 from .tasks import Task
 from .trajectory import Trajectory
@@ -249,7 +249,7 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     s = settings
     if s.mode != "true" and belief is None:
         raise AmheError(f"mode {s.mode} needs a starting belief (--belief, or let run probe first)")
-    pscene = planner_scene(task_scene_config(task, s.planner.dt, s.kp, s.kd), s.planner.dt)
+    pscene = Scene(task_scene_config(task, s.planner.dt, s.kp, s.kd))
     prior = {k: v for k, v in (truth if s.mode == "true" else belief.values).items() if k in RUN_PARAMS}
     space = ParameterSpace(pscene, free=RUN_PARAMS, prior=prior,
                            prior_std=None if s.mode == "true" else _belief_std(belief))

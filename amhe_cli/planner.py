@@ -22,7 +22,7 @@ never sees the plant's model.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
@@ -245,9 +245,3 @@ class Planner:
         self.mean = np.einsum("n,nkj->kj", w, knots)
         controls = self._controls(self.mean[None], ref)[0]
         return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0)
-
-
-def planner_scene(config, dt: float) -> Scene:
-    """The planner's own scene: ``config`` (a :class:`~amhe_cli.scene.SceneConfig`) at timestep ``dt``."""
-    return Scene(replace(config, timestep=dt))
-
