@@ -31,6 +31,13 @@ def check_plot_path(path) -> Path | None:
     return None if path is None else _check_png(path)
 
 
+def _estimate_band(ax, t: np.ndarray, v: np.ndarray, sd: np.ndarray, label: str) -> np.ndarray:
+    """A piecewise-constant estimate ``v`` over ``t`` with its ±1σ band; returns ``v``."""
+    ax.fill_between(t, v - sd, v + sd, step="post", alpha=0.25, color="tab:blue", label="±1σ")
+    ax.step(t, v, where="post", color="tab:blue", label=label)
+    return v
+
+
 def plot_identify(path, result, cost_rollout, traj=None) -> Path:
     """Cost over generations and recorded vs predicted box motion of an identification.
 
@@ -116,9 +123,7 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
                              constrained_layout=True)
     t = rows[:, 0]
     for ax, name in zip(axes[:, 0], names):
-        v, sd = rows[:, head.index(name)], rows[:, head.index(name + "_std")]
-        ax.fill_between(t, v - sd, v + sd, step="post", alpha=0.25, color="tab:blue", label="±1σ")
-        ax.step(t, v, where="post", color="tab:blue", label="estimate")
+        v = _estimate_band(ax, t, rows[:, head.index(name)], rows[:, head.index(name + "_std")], "estimate")
         if skipped is not None and np.any(skipped):
             ax.plot(t[skipped], v[skipped], "x", color="0.5", ms=4, label="kept (window at rest)")
         if truth is not None:
@@ -169,12 +174,9 @@ def plot_run(path, result, task) -> Path:
     for k, (name, unit) in enumerate((("box_mass", "kg"), ("box_friction", "-"))):
         a = ax[2 + k]
         if name in result.labels:
-            i = result.labels.index(name)
-            tt = np.append(est_t, traj.t[-1])
-            vv = np.append(est_v[:, i], est_v[-1, i])
-            ss = np.append(est_s[:, i], est_s[-1, i])
-            a.step(tt, vv, where="post", label="planner's belief")
-            a.fill_between(tt, vv - ss, vv + ss, step="post", alpha=0.25)
+            i = result.labels.index(name)  # held until the run's end
+            _estimate_band(a, np.append(est_t, traj.t[-1]), np.append(est_v[:, i], est_v[-1, i]),
+                           np.append(est_s[:, i], est_s[-1, i]), "planner's belief")
         if name in ts:
             a.plot(ts["t"], ts[name], "k--", label="truth")
         a.set_xlabel("t [s]"), a.set_ylabel(f"{name} [{unit}]"), a.legend(fontsize=7)
