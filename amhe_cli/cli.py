@@ -557,7 +557,7 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, o
     if plot_path is not None:
         plot_run(plot_path, result, task)
     for m in result.messages:
-        if "MHE" in m or "fell" in m:
+        if "MHE" in m or "fell" in m or "lost the box" in m:
             click.echo(f"amhe: warning: {m}", err=True)
     if as_json:
         click.echo(json.dumps(result.metrics()))

@@ -303,6 +303,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     costs, speeds, cmd_speeds, box_path = [], [], [], []
     pending_events = list(task.events)
     plan, prev_used = None, 0
+    phase = None
     try:
         while plant.data.time < task.duration - 1e-9:
             t = float(plant.data.time)
@@ -310,6 +311,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             box_xy = q[sc.box_qpos[:2]]
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
             cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth)
+            if cmd["phase"] != phase:
+                if phase is not None:
+                    messages.append(f"t={t:.2f} s: " + ("behind the box again, pushing" if cmd["phase"] == "push"
+                                                         else "lost the box, walking back behind it"))
+                phase = cmd["phase"]
             state = pscene.full_state(q[None], v[None])[0]
             prev = plan
             plan = planner.plan(state, t, cmd)

@@ -225,10 +225,13 @@ def test_t1_waypoint_behind_box_on_line_to_goal():
     assert cmd["waypoint"][0] == pytest.approx(task.box_start[0] - HALF_DEPTH - HEAD_REACH)
     assert cmd["waypoint"][1] == pytest.approx(0.0)
     assert cmd["speed"] == pytest.approx(task.speed) and task.speed == pytest.approx(0.2)
-    # box off the axis: the waypoint is on the goal-box line, beyond the box
+    assert cmd["phase"] == "push"
+    # box off the axis, robot behind it on the goal-box line: the waypoint is on that line, beyond the box
     box = np.array([1.0, 0.4])
-    cmd = task.command(np.zeros(2), 0.0, box, HALF_DEPTH)
     goal = np.asarray(task.goal)
+    d = (goal - box) / np.linalg.norm(goal - box)
+    cmd = task.command(box - 0.5 * d, 0.0, box, HALF_DEPTH)
+    assert cmd["phase"] == "push"
     a, b = box - goal, cmd["waypoint"] - goal
     assert abs(a[0] * b[1] - a[1] * b[0]) < 1e-9
     assert np.linalg.norm(b) == pytest.approx(np.linalg.norm(a) + HALF_DEPTH + HEAD_REACH)
@@ -236,12 +239,48 @@ def test_t1_waypoint_behind_box_on_line_to_goal():
     assert cmd["omega"] < 0  # turn right toward the push direction
 
 
+def test_push_heading_bends_back_toward_the_push_line():
+    task = get_task("t1")
+    box = np.array(task.box_start)
+    on_line = task.command(box - [0.47, 0.0], 0.0, box, HALF_DEPTH)
+    left = task.command(box - [0.47, -0.1], 0.0, box, HALF_DEPTH)
+    right = task.command(box - [0.47, 0.1], 0.0, box, HALF_DEPTH)
+    assert on_line["phase"] == left["phase"] == right["phase"] == "push"
+    assert on_line["yaw"] == pytest.approx(0.0)
+    assert left["yaw"] < 0 < right["yaw"]  # steer back to the line, as the trot cannot sidestep
+    assert left["yaw"] == pytest.approx(-right["yaw"])
+    np.testing.assert_allclose(left["waypoint"], on_line["waypoint"])  # the pushing pose stays on the line
+
+
+def test_a_robot_past_the_box_walks_back_behind_it():
+    task = get_task("t4")
+    box = np.array([1.9, 0.0])
+    # beside and ahead of the box, facing the goal: turn on the spot, around the box on the robot's side
+    cmd = task.command(box + [0.3, 0.8], 0.0, box, HALF_DEPTH)
+    assert cmd["phase"] == "approach"
+    assert cmd["speed"] == 0.0 and abs(cmd["omega"]) > 0
+    assert cmd["waypoint"][0] < box[0] - HALF_DEPTH - HEAD_REACH  # behind the pushing pose
+    assert cmd["waypoint"][1] > box[1] + HALF_DEPTH  # on the robot's (left) side of the box
+    assert cmd["box_speed"] == 0.0  # nobody pushes the box meanwhile
+    # once facing its waypoint it walks there
+    wp = cmd["waypoint"]
+    base = box + [0.3, 0.8]
+    facing = float(np.arctan2(*(wp - base)[::-1]))
+    walk = task.command(base, facing, box, HALF_DEPTH)
+    assert walk["speed"] > 0 and walk["yaw"] == pytest.approx(facing)
+    # fallen far behind the box: walk up to it
+    cmd = task.command(box - [1.5, 0.0], 0.0, box, HALF_DEPTH)
+    assert cmd["phase"] == "approach" and cmd["speed"] > 0 and cmd["waypoint"][1] == pytest.approx(box[1])
+
+
 def test_t1_speed_command_slows_to_zero_at_goal():
     task = get_task("t1")
     goal = np.asarray(task.goal)
-    far = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH)["speed"]
-    mid = task.command(np.zeros(2), 0.0, goal - [0.2, 0.0], HALF_DEPTH)["speed"]
-    near = task.command(np.zeros(2), 0.0, goal - [0.5 * task.goal_tol, 0.0], HALF_DEPTH)["speed"]
+    def speed(box):  # the robot in its pushing pose behind the box
+        box = np.asarray(box, dtype=float)
+        return task.command(box - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, box, HALF_DEPTH)["speed"]
+
+    far, mid, near = speed(task.box_start), speed(goal - [0.2, 0.0]), speed(goal - [0.5 * task.goal_tol, 0.0])
     assert far == pytest.approx(0.2)
     assert 0 < mid < far
     assert near == 0.0
@@ -250,7 +289,7 @@ def test_t1_speed_command_slows_to_zero_at_goal():
 def test_box_reference_never_passes_target():
     task = get_task("t1")
     box = np.array([1.8, 0.0])
-    cmd = task.command(np.zeros(2), 0.0, box, HALF_DEPTH)
+    cmd = task.command(box - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, box, HALF_DEPTH)
     tau = np.linspace(0.0, 100.0, 2001)
     ref = task.box_reference(cmd, tau)
     assert ref.shape == (len(tau), 2)
