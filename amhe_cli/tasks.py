@@ -228,8 +228,8 @@ class Task:
             waypoint = waypoint + normal * side * (half_width + HEAD_REACH + APPROACH_MARGIN)
         to_wp = waypoint - base_xy
         yaw = float(np.arctan2(to_wp[1], to_wp[0]))
-        err = float(np.angle(np.exp(1j * (yaw - base_yaw))))
-        speed = 0.0 if abs(err) > TURN_IN_PLACE else self.speed * min(1.0, float(np.linalg.norm(to_wp)) / 0.3)
+        near = min(1.0, float(np.linalg.norm(to_wp)) / self.slow_radius)  # slowing down as at the goal
+        speed = 0.0 if abs(_yaw_error(yaw, base_yaw)) > TURN_IN_PLACE else self.speed * near
         return {**out, "direction": d, "waypoint": waypoint, "yaw": yaw, "speed": speed,
                 "omega": _turn(yaw, base_yaw), "box_speed": 0.0, "phase": "approach"}
 
@@ -292,10 +292,14 @@ class Task:
         return self.weights.terminal * self._box_term(box_pos, cmd, tau)
 
 
+def _yaw_error(yaw: float, base_yaw: float) -> float:
+    """``yaw − base_yaw`` wrapped to (−π, π] [rad]."""
+    return float(np.angle(np.exp(1j * (yaw - base_yaw))))
+
+
 def _turn(yaw: float, base_yaw: float) -> float:
     """Yaw-rate command [rad/s] toward heading ``yaw``: proportional, clipped to :data:`MAX_YAW_RATE`."""
-    err = float(np.angle(np.exp(1j * (yaw - base_yaw))))
-    return float(np.clip(1.5 * err, -MAX_YAW_RATE, MAX_YAW_RATE))
+    return float(np.clip(1.5 * _yaw_error(yaw, base_yaw), -MAX_YAW_RATE, MAX_YAW_RATE))
 
 
 def _tilt(quat: np.ndarray) -> np.ndarray:

@@ -242,9 +242,10 @@ def test_t1_waypoint_behind_box_on_line_to_goal():
 def test_push_heading_bends_back_toward_the_push_line():
     task = get_task("t1")
     box = np.array(task.box_start)
-    on_line = task.command(box - [0.47, 0.0], 0.0, box, HALF_DEPTH)
-    left = task.command(box - [0.47, -0.1], 0.0, box, HALF_DEPTH)
-    right = task.command(box - [0.47, 0.1], 0.0, box, HALF_DEPTH)
+    back = HALF_DEPTH + HEAD_REACH  # the pushing pose
+    on_line = task.command(box - [back, 0.0], 0.0, box, HALF_DEPTH)
+    left = task.command(box - [back, -0.1], 0.0, box, HALF_DEPTH)
+    right = task.command(box - [back, 0.1], 0.0, box, HALF_DEPTH)
     assert on_line["phase"] == left["phase"] == right["phase"] == "push"
     assert on_line["yaw"] == pytest.approx(0.0)
     assert left["yaw"] < 0 < right["yaw"]  # steer back to the line, as the trot cannot sidestep
@@ -276,6 +277,7 @@ def test_a_robot_past_the_box_walks_back_behind_it():
 def test_t1_speed_command_slows_to_zero_at_goal():
     task = get_task("t1")
     goal = np.asarray(task.goal)
+
     def speed(box):  # the robot in its pushing pose behind the box
         box = np.asarray(box, dtype=float)
         return task.command(box - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, box, HALF_DEPTH)["speed"]
