@@ -103,21 +103,20 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
         cov_sw = A_inv @ S @ A_inv
         cov = cov_ls if np.trace(cov_ls / np.outer(space.std0, space.std0)) >= \
             np.trace(cov_sw / np.outer(space.std0, space.std0)) else cov_sw
+    total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
+    return Curvature(p, F, *_cov_std_corr(cov), total, j0, s2)
+
+
+def _cov_std_corr(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d, d) covariance symmetrised, its (d,) std and its (d, d) correlation (1 on the diagonal)."""
     cov = 0.5 * (cov + cov.T)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
     np.fill_diagonal(corr, 1.0)
-    total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
-    return Curvature(p, F, cov, std, np.clip(corr, -1, 1), total, j0, s2)
+    return cov, std, np.clip(corr, -1, 1)
 
 
 def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
     """``curv`` with its covariance (and std, correlation) replaced by ``cov`` (d, d)."""
-    cov = 0.5 * (cov + cov.T)
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = np.where(np.outer(std, std) > 0, cov / np.outer(std, std), 0.0)
-    np.fill_diagonal(corr, 1.0)
-    return Curvature(curv.point, curv.fisher, cov, std, np.clip(corr, -1, 1), curv.cost, curv.data,
-                     curv.residual_scale)
+    return Curvature(curv.point, curv.fisher, *_cov_std_corr(cov), curv.cost, curv.data, curv.residual_scale)
