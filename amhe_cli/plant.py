@@ -9,7 +9,6 @@ the planner. The plant may use a finer timestep than the recorded grid.
 
 from __future__ import annotations
 
-
 import mujoco
 import numpy as np
 
@@ -39,6 +38,7 @@ class SimPlant:
         self.model = self.scene.model
         self.truth = dict(truth or {})
         self._apply_truth()
+        self._truth_at_reset = dict(self.truth_values)
         self.data = mujoco.MjData(self.model)
         self.substeps = max(1, int(round(record_dt / self.model.opt.timestep)))
         self.record_dt = self.substeps * self.model.opt.timestep
