@@ -20,6 +20,7 @@ import numpy as np
 
 from . import __version__
 from .belief import Belief
+from .closed_loop import MODES
 from .errors import AmheError
 from .identify import IdentifyResult, IdentifySettings, identify, settings_dict
 from .params import PARAMETERS, parse_names
@@ -510,7 +511,7 @@ def _load_belief(path: str | None) -> Belief | None:
 @click.option("--task", "task_name", default="t1", show_default=True, help="Task t1..t5 (DESIGN.md §6).")
 @click.option("--target", type=click.Choice(["sim", "go1"]), default="sim", show_default=True,
               help="Plant: the MuJoCo sim (a real Go1 is not supported by this version).")
-@click.option("--mode", type=click.Choice(["true", "baseline", "adaptive"]), default="adaptive", show_default=True,
+@click.option("--mode", type=click.Choice(MODES), default="adaptive", show_default=True,
               help="Planner's parameters: the truth, a fixed belief, or the belief re-estimated online by the MHE.")
 @click.option("--belief", default=None, type=click.Path(), help="Starting belief YAML (default: probe in sim first).")
 @click.option("--config", default=None, type=click.Path(),
@@ -556,9 +557,8 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, o
     save_run(result, out_path, task, settings, overwrite=force)
     if plot_path is not None:
         plot_run(plot_path, result, task)
-    for m in result.messages:
-        if "MHE" in m or "fell" in m or "lost the box" in m:
-            click.echo(f"amhe: warning: {m}", err=True)
+    for m in result.warnings:
+        click.echo(f"amhe: warning: {m}", err=True)
     if as_json:
         click.echo(json.dumps(result.metrics()))
         return

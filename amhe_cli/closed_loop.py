@@ -183,7 +183,8 @@ class RunResult:
         estimates: (t [s], (n, d) physical values, (n, d) std) of the planner's
             parameters each time they changed (t = plant time of the swap).
         labels: (d,) labels of the estimate columns.
-        messages: what went wrong along the way (estimator failures, skipped updates).
+        messages: the run's log (plant events, phase changes and all of ``warnings``).
+        warnings: the messages a user should see: a fall, a lost box, estimator failures and skipped updates.
     """
 
     success: bool
@@ -197,6 +198,7 @@ class RunResult:
     estimates: tuple
     labels: list
     messages: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
     box_path: np.ndarray | None = None
     speed: np.ndarray | None = None
     plan_times: np.ndarray | None = None
@@ -285,6 +287,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
     pscene = planner.scene
     messages: list[str] = []
+    warnings: list[str] = []
+
+    def warn(text: str) -> None:
+        messages.append(text), warnings.append(text)
     v0, sd0 = space.physical(space.mean0, space.std0)
     est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
 
@@ -312,9 +318,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
             cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth)
             if cmd["phase"] != phase:
-                if phase is not None:
-                    messages.append(f"t={t:.2f} s: " + ("behind the box again, pushing" if cmd["phase"] == "push"
-                                                         else "lost the box, walking back behind it"))
+                if phase == "push":
+                    warn(f"t={t:.2f} s: lost the box, walking back behind it")
+                elif phase is not None:
+                    messages.append(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
             state = pscene.full_state(q[None], v[None])[0]
             prev = plan
@@ -346,7 +353,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             now = float(plant.data.time)
             if plant.data.qpos[sc.base_qpos[2]] < task.fall_height:
                 fell = True
-                messages.append(f"t={now:.2f} s: the robot fell (base at {plant.data.qpos[sc.base_qpos[2]]:.3f} m)")
+                warn(f"t={now:.2f} s: the robot fell (base at {plant.data.qpos[sc.base_qpos[2]]:.3f} m)")
                 break
             if task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
                 t_reach = now
@@ -357,12 +364,13 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     pending = False
                     if not res.skipped:
                         swap(*_to_planner(res, estimator.mhe.space, space), now)
-                messages += estimator.take_errors()
+                for text in estimator.take_errors():
+                    warn(text)
                 if now >= next_update - 1e-9:
                     if estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True
                     else:
-                        messages.append(f"t={now:.2f} s: MHE update skipped, the last one is still running")
+                        warn(f"t={now:.2f} s: MHE update skipped, the last one is still running")
                     next_update += s.mhe.every
             if progress is not None:
                 progress(now)
@@ -381,7 +389,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         rmse=float(np.sqrt(np.mean((speeds - cmd_speeds) ** 2))), fell=fell,
         control_hz=len(plan_times) / wall if wall > 0 else float("nan"), traj=traj,
         estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
-        messages=messages, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
+        messages=messages, warnings=warnings, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
         plan_times=np.array(plan_times),
     )
 
