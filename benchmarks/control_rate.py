@@ -1,7 +1,7 @@
 """Planner update rate with the defaults against the raw ``mujoco.rollout`` bound, in one run.
 
 Runs task T1 in true mode, lock-step, with the default planner for about
-``--cycles`` cycles (``amhe_cli.closed_loop.run_task``) and takes each cycle's
+``--cycles`` cycles (``amhe_cli.control.closed_loop.run_task``) and takes each cycle's
 ``Planner.plan`` time. The bound is what raw ``mujoco.rollout`` of the same
 steps allows: every batch the planner rolled out (its initial states and
 sampled controls, refinement loops at contact-mode switches included) is
@@ -22,9 +22,9 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from amhe_cli.closed_loop import RunSettings, run_task
-from amhe_cli.rollout import RolloutPool, default_threads
-from amhe_cli.tasks import get_task
+from amhe_cli.control.closed_loop import RunSettings, run_task
+from amhe_cli.model.rollout import RolloutPool, default_threads
+from amhe_cli.control.tasks import get_task
 
 
 def main() -> None:

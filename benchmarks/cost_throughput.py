@@ -37,17 +37,17 @@ from mujoco import rollout as mj_rollout
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from amhe_cli.clips import sample_clips  # noqa: E402
-from amhe_cli.cost import RolloutCost, state_error  # noqa: E402
-from amhe_cli.params import ParameterSpace, parse_names  # noqa: E402
-from amhe_cli.rollout import default_threads  # noqa: E402
-from amhe_cli.scene import Scene, SceneConfig, infer_scene_config  # noqa: E402
+from amhe_cli.estimation.clips import sample_clips  # noqa: E402
+from amhe_cli.estimation.cost import RolloutCost, state_error  # noqa: E402
+from amhe_cli.model.params import ParameterSpace, parse_names  # noqa: E402
+from amhe_cli.model.rollout import default_threads  # noqa: E402
+from amhe_cli.model.scene import Scene, SceneConfig, infer_scene_config  # noqa: E402
 
 
 def synthetic_log():
     """The lunge log of tests/test_core.py: 5 kg box, μ 0.45, three bumps; returns (traj, SceneConfig)."""
-    from amhe_cli.maneuver import lunge_schedule
-    from amhe_cli.plant import SimPlant
+    from amhe_cli.control.maneuver import lunge_schedule
+    from amhe_cli.plants.sim import SimPlant
 
     config = SceneConfig()
     plant = SimPlant(config, truth={"box_mass": 5.0, "box_friction": 0.45})
@@ -80,7 +80,7 @@ class RawRollout:
             init = np.ascontiguousarray(np.tile(clips.initial_state[idx], (B, 1)))
             ctrl = np.ascontiguousarray(np.tile(clips.control[idx, :h], (B, 1, 1)))
             state = np.empty((len(models), h, nstate))
-            chunk = max(1, len(models) // (nthread * 4))  # what amhe_cli.rollout.RolloutPool uses
+            chunk = max(1, len(models) // (nthread * 4))  # what amhe_cli.model.rollout.RolloutPool uses
             self.calls.append((models, init, ctrl, h, state, chunk))
             self.steps += len(models) * h
 

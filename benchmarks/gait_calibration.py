@@ -7,7 +7,7 @@ Usage::
 Plays the trot reference (no planner) in the 2 ms sim plant for a range of
 commanded forward speeds and yaw rates, measures the base's mean forward
 speed and yaw rate from 1 s to 5 s, and fits the stride model of
-:class:`~amhe_cli.gait.Gait` — realised leg speed = gain · (commanded −
+:class:`~amhe_cli.control.gait.Gait` — realised leg speed = gain · (commanded −
 deadband) — to the raw kinematic reference (``--raw``: stride_gain 1,
 deadband 0, turn_gain 1). Without ``--raw`` it measures the calibrated
 reference, whose achieved speeds should match the commands. The last line
@@ -23,9 +23,9 @@ import numpy as np
 
 
 def walk(gait, v, omega, kp, kd, seconds=5.0):
-    from amhe_cli.closed_loop import make_plant
+    from amhe_cli.control.closed_loop import make_plant
     from amhe_cli.io.quat import quat_to_yaw
-    from amhe_cli.tasks import get_task
+    from amhe_cli.control.tasks import get_task
     plant = make_plant(get_task("t1", box_start=(9.0, 9.0)), kp, kd)  # box far out of the way
     sc = plant.scene
     poses = []
@@ -47,7 +47,7 @@ def main() -> None:
     ap.add_argument("--kd", type=float, default=4.0)
     ap.add_argument("--raw", action="store_true", help="measure the uncalibrated kinematic reference")
     a = ap.parse_args()
-    from amhe_cli.gait import GAITS
+    from amhe_cli.control.gait import GAITS
     gait = GAITS["trot"]
     if a.raw:
         gait = replace(gait, stride_gain=1.0, stride_deadband=0.0, turn_gain=1.0)

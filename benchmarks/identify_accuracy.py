@@ -31,9 +31,9 @@ def truth_of(path: str) -> tuple[float, float]:
 
 def one(job):
     log, params, clips, popsize, gens, seed, threads = job
-    from amhe_cli.identify import IdentifySettings, identify
-    from amhe_cli.params import parse_names
-    from amhe_cli.problem import load_problem
+    from amhe_cli.estimation.identify import IdentifySettings, identify
+    from amhe_cli.model.params import parse_names
+    from amhe_cli.estimation.problem import load_problem
     free = parse_names(params)
     pr = load_problem(log, params=free)
     t0 = time.perf_counter()

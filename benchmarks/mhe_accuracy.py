@@ -25,9 +25,9 @@ import numpy as np
 
 def run(job):
     log, kind, kw, seed, threads = job
-    from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
-    from amhe_cli.problem import load_problem
-    from amhe_cli.replay import estimates_table, replay, truth_series
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    from amhe_cli.estimation.problem import load_problem
+    from amhe_cli.estimation.replay import estimates_table, replay, truth_series
     pr = load_problem(log, params=("box_mass", "box_friction"))
     with MovingHorizonEstimator(pr.scene, pr.space, MHESettings(**{**kw, "seed": seed}), nthread=threads) as m:
         res = replay(pr.traj, m)

@@ -15,9 +15,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
-from amhe_cli.problem import load_problem
-from amhe_cli.replay import replay
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.estimation.problem import load_problem
+from amhe_cli.estimation.replay import replay
 
 
 def main() -> None:

@@ -11,8 +11,8 @@ import json
 import sys
 import time
 
-from amhe_cli.closed_loop import run_task
-from amhe_cli.evaluate import probe_belief, run_settings
+from amhe_cli.control.closed_loop import run_task
+from amhe_cli.control.evaluate import probe_belief, run_settings
 
 name = sys.argv[1]
 over = json.loads(sys.argv[2]) if len(sys.argv) > 2 else {}

@@ -12,8 +12,8 @@ import pytest
 import yaml
 
 from amhe_cli.io.writer import write_mcap
-from amhe_cli.problem import example_logs
-from amhe_cli.probe import simulate_probe
+from amhe_cli.estimation.problem import example_logs
+from amhe_cli.control.probing import simulate_probe
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 # small but not degenerate: 8 clips x 12 generations misses by up to 10 % (benchmarks/identify_accuracy.py)
@@ -148,7 +148,7 @@ def test_probe_sim_records_then_identifies(tmp_path):
 
 def test_topic_map_and_pairs(tmp_path):
     from amhe_cli.errors import AmheError
-    from amhe_cli.problem import parse_box_size, parse_topics
+    from amhe_cli.estimation.problem import parse_box_size, parse_topics
     m = tmp_path / "map.yaml"
     m.write_text("topics:\n  box: /vicon/box\n  base: /vicon/go1\n")
     assert parse_topics(("box=/mocap/crate",), str(m)) == {"box": "/mocap/crate", "base": "/vicon/go1"}

@@ -2,7 +2,7 @@
 
 One synthetic log is generated per module (0.2 s of CPU): the simulated Go1
 stands behind a 5 kg box (box–floor μ 0.45) and lunges three times
-(:func:`~amhe_cli.maneuver.lunge_schedule`), so the head bumps the box and it
+(:func:`~amhe_cli.control.maneuver.lunge_schedule`), so the head bumps the box and it
 slides free three times. Everything downstream is checked against that known
 truth: the cost is lowest there, clips rolled out under the truth reproduce the
 log, ``identify`` recovers it.
@@ -16,14 +16,14 @@ import mujoco
 import numpy as np
 import pytest
 
-from amhe_cli.clips import ROLES, make_clips, sample_clips
-from amhe_cli.cost import DEFAULT_SIGMA, RolloutCost, StateWeights
+from amhe_cli.estimation.clips import ROLES, make_clips, sample_clips
+from amhe_cli.estimation.cost import DEFAULT_SIGMA, RolloutCost, StateWeights
 from amhe_cli.errors import AmheError
-from amhe_cli.identify import IdentifySettings, identify
-from amhe_cli.maneuver import lunge_schedule
-from amhe_cli.params import PARAMETERS, ParameterSpace, parse_names
-from amhe_cli.plant import SimPlant
-from amhe_cli.scene import (
+from amhe_cli.estimation.identify import IdentifySettings, identify
+from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.model.params import PARAMETERS, ParameterSpace, parse_names
+from amhe_cli.plants.sim import SimPlant
+from amhe_cli.model.scene import (
     STAND_JOINTS,
     FloorRegion,
     Scene,
@@ -31,8 +31,8 @@ from amhe_cli.scene import (
     set_pd_gains,
     uniform_box_inertia,
 )
-from amhe_cli.trajectory import GO1_JOINTS
-from amhe_cli.uncertainty import curvature
+from amhe_cli.io.trajectory import GO1_JOINTS
+from amhe_cli.estimation.uncertainty import curvature
 
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
 #: the standing robot's head front is at x ≈ 0.28 m; box half-size 0.19 m; 1 cm gap
@@ -569,8 +569,8 @@ def test_plant_observed_masks_are_independent(traj):
 
 def test_scene_infers_another_box_height_from_the_robots_floor():
     """A log of a 0.30 m box read without --box-size: the default 0.38 m would float it 4 cm."""
-    from amhe_cli.probe import simulate_probe
-    from amhe_cli.scene import infer_scene_config
+    from amhe_cli.control.probing import simulate_probe
+    from amhe_cli.model.scene import infer_scene_config
     traj = simulate_probe({"box_mass": 3.0}, config=SceneConfig(box_size=(0.3, 0.3, 0.3)), lunges=(0.05,))
     with pytest.warns(UserWarning, match="cube"):
         cfg = infer_scene_config(traj)
@@ -586,8 +586,8 @@ def test_scene_floor_ignores_a_box_leaning_on_the_robot():
     import warnings as _w
 
     from amhe_cli.io.quat import quat_face_tilt, quat_from_rotvec
-    from amhe_cli.probe import simulate_probe
-    from amhe_cli.scene import infer_scene_config
+    from amhe_cli.control.probing import simulate_probe
+    from amhe_cli.model.scene import infer_scene_config
     traj = simulate_probe({"box_mass": 3.0}, lunges=(0.05,))
     lean = np.arange(len(traj)) >= len(traj) // 3
     angle = np.radians(8.0)

@@ -38,7 +38,7 @@ from amhe_cli.io.reader import (
     read_log,
 )
 from amhe_cli.io.writer import McapLog, write_mcap
-from amhe_cli.trajectory import GO1_JOINTS, SIGNALS, Trajectory
+from amhe_cli.io.trajectory import GO1_JOINTS, SIGNALS, Trajectory
 
 # shared/ lies beside the checkout (DESIGN.md), in CI as in development
 CONST_A = Path(__file__).resolve().parents[2] / "shared" / "logs" / "const_a.mcap"

@@ -13,12 +13,12 @@ import pytest
 from amhe_cli.errors import AmheError
 from amhe_cli.io.reader import read_float_arrays
 from amhe_cli.io.writer import write_mcap
-from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
-from amhe_cli.sampling import gaussian_step, log_rank_weights
-from amhe_cli.params import ParameterSpace
-from amhe_cli.probe import simulate_probe
-from amhe_cli.replay import estimates_table, replay
-from amhe_cli.scene import Scene, SceneConfig
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.estimation.sampling import gaussian_step, log_rank_weights
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.control.probing import simulate_probe
+from amhe_cli.estimation.replay import estimates_table, replay
+from amhe_cli.model.scene import Scene, SceneConfig
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 

@@ -12,17 +12,17 @@ import json
 import numpy as np
 import pytest
 
-from amhe_cli.belief import Belief
-from amhe_cli.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
+from amhe_cli.estimation.belief import Belief
+from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
 from amhe_cli.errors import AmheError
-from amhe_cli.evaluate import run_settings, summarise
-from amhe_cli.gait import GAITS, LEGS, STAND_HEIGHT
-from amhe_cli.maneuver import CALF, THIGH
-from amhe_cli.mhe import MHESettings, MovingHorizonEstimator
-from amhe_cli.planner import PlannerSettings, spline_basis
-from amhe_cli.sampling import mppi_weights
-from amhe_cli.scene import STAND_JOINTS
-from amhe_cli.tasks import BASE_HEIGHT, HEAD_REACH, Event, get_task
+from amhe_cli.control.evaluate import run_settings, summarise
+from amhe_cli.control.gait import GAITS, LEGS, STAND_HEIGHT
+from amhe_cli.control.maneuver import CALF, THIGH
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.control.planner import PlannerSettings, spline_basis
+from amhe_cli.estimation.sampling import mppi_weights
+from amhe_cli.model.scene import STAND_JOINTS
+from amhe_cli.control.tasks import BASE_HEIGHT, HEAD_REACH, Event, get_task
 
 #: small planner: enough to exercise every code path, cheap enough for a test
 SMALL = {"samples": 8, "horizon": 20}
@@ -190,7 +190,7 @@ def test_trot_forward_speed_moves_stance_foot_backward():
 
 
 def test_calibrated_trot_strides_longer_and_stands_still_at_zero():
-    from amhe_cli.gait import STRIDE_SMOOTH
+    from amhe_cli.control.gait import STRIDE_SMOOTH
     trot = GAITS["trot"]
     assert trot.stride_gain < 1 and trot.stride_deadband > 0  # the servos realise less than the kinematics
     ts = np.linspace(0.001, trot.duty * trot.period - 0.001, 30)
@@ -440,10 +440,10 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
 
 
 def test_mhe_update_reaches_the_planner_with_inertia_following_mass():
-    from amhe_cli.closed_loop import _to_planner, task_scene_config
-    from amhe_cli.mhe import Update
-    from amhe_cli.params import ParameterSpace
-    from amhe_cli.scene import Scene
+    from amhe_cli.control.closed_loop import _to_planner, task_scene_config
+    from amhe_cli.estimation.mhe import Update
+    from amhe_cli.model.params import ParameterSpace
+    from amhe_cli.model.scene import Scene
 
     task = get_task("t4")
     planner, space = make_planner(task, small_settings("baseline"), belief(5.0, 0.3), {})

@@ -1,4 +1,4 @@
-"""Match the joint names of a log to :data:`~amhe_cli.trajectory.GO1_JOINTS`.
+"""Match the joint names of a log to :data:`~amhe_cli.io.trajectory.GO1_JOINTS`.
 
 Names used by other stacks (prefixes, lower case, ANYmal-style ``RF_HAA``)
 are mapped through leg and part aliases; used by step 3 of
@@ -11,8 +11,8 @@ import re
 
 import numpy as np
 
-from ..errors import AmheError
-from ..trajectory import GO1_JOINTS
+from amhe_cli.errors import AmheError
+from amhe_cli.io.trajectory import GO1_JOINTS
 
 _LEG_ALIASES = {"fr": "FR", "rf": "FR", "fl": "FL", "lf": "FL", "rr": "RR", "rh": "RR", "rl": "RL", "lh": "RL"}
 _PART_ALIASES = {

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from ..errors import AmheError
+from amhe_cli.errors import AmheError
 
 _NOT_A_LOG = "expected an MCAP file, a rosbag2 folder or a ROS 1 .bag"
 

@@ -23,15 +23,15 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import AmheError
-from ..trajectory import GO1_JOINTS, Trajectory
+from amhe_cli.errors import AmheError
+from amhe_cli.io.trajectory import GO1_JOINTS, Trajectory
 
 # the steps' modules (see the module docstring)
-from .joints import canonical_joint_name, match_joints
-from .logfile import _one_line, _open_log, _sha256
-from .resample import _resample
-from .roles import GAINS_ROLE, REQUIRED_ROLES, _short_type, _topics_present, assign_roles
-from .unpack import _gains, _Series, _Unpacker
+from amhe_cli.io.joints import canonical_joint_name, match_joints
+from amhe_cli.io.logfile import _one_line, _open_log, _sha256
+from amhe_cli.io.resample import _resample
+from amhe_cli.io.roles import GAINS_ROLE, REQUIRED_ROLES, _short_type, _topics_present, assign_roles
+from amhe_cli.io.unpack import _gains, _Series, _Unpacker
 
 __all__ = [
     "REQUIRED_ROLES",

@@ -10,12 +10,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import AmheError
-from ..trajectory import Trajectory
-from .quat import quat_conj, quat_make_continuous, quat_mul, quat_normalize, quat_slerp, quat_to_rotvec
-from .roles import REQUIRED_ROLES
-from .smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
-from .unpack import _Series
+from amhe_cli.errors import AmheError
+from amhe_cli.io.trajectory import Trajectory
+from amhe_cli.io.quat import quat_conj, quat_make_continuous, quat_mul, quat_normalize, quat_slerp, quat_to_rotvec
+from amhe_cli.io.roles import REQUIRED_ROLES
+from amhe_cli.io.smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
+from amhe_cli.io.unpack import _Series
 
 #: A grid time counts as observed if its bracketing messages are at most this
 #: many median message periods apart (commands: if the last one is this old).

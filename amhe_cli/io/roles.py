@@ -10,7 +10,7 @@ from __future__ import annotations
 import itertools
 import re
 
-from ..errors import AmheError
+from amhe_cli.errors import AmheError
 
 #: Roles a log must provide for identification, in the order they are checked.
 REQUIRED_ROLES: tuple[str, ...] = ("joint_states", "base", "box", "joint_commands")

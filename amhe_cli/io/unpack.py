@@ -1,7 +1,7 @@
 """Unpack decoded messages into time-stamped arrays: step 3 of :mod:`~amhe_cli.io.reader`.
 
 The messages of each role become time-stamped arrays in MuJoCo conventions
-(wxyz quaternions, joints in :data:`~amhe_cli.trajectory.GO1_JOINTS` order,
+(wxyz quaternions, joints in :data:`~amhe_cli.io.trajectory.GO1_JOINTS` order,
 matched by name), dropping the few messages with non-finite values; PD gains
 are taken from the commands, a gains topic or an MCAP metadata record.
 """
@@ -14,11 +14,11 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import AmheError
-from .joints import match_joints
-from .logfile import _one_line
-from .quat import body_to_world, quat_make_continuous, ros_to_mj
-from .roles import GAINS_ROLE, _LOWCMD_TYPES, _LOWSTATE_TYPES, _short_type
+from amhe_cli.errors import AmheError
+from amhe_cli.io.joints import match_joints
+from amhe_cli.io.logfile import _one_line
+from amhe_cli.io.quat import body_to_world, quat_make_continuous, ros_to_mj
+from amhe_cli.io.roles import GAINS_ROLE, _LOWCMD_TYPES, _LOWSTATE_TYPES, _short_type
 
 #: Name of the MCAP metadata record that carries the PD gains.
 GAINS_RECORD = "joint_command_gains"

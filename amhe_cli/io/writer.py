@@ -34,9 +34,9 @@ from typing import Any, Iterable, Sequence
 
 import numpy as np
 
-from ..errors import AmheError
-from ..trajectory import GO1_JOINTS, Trajectory
-from .quat import mj_to_ros, world_to_body
+from amhe_cli.errors import AmheError
+from amhe_cli.io.trajectory import GO1_JOINTS, Trajectory
+from amhe_cli.io.quat import mj_to_ros, world_to_body
 
 __all__ = ["McapLog", "write_mcap", "GAINS_RECORD"]
 

@@ -1,6 +1,6 @@
 """Run configuration, the probing belief, and the evaluation grid (paper §V, Table I).
 
-* :func:`run_settings` builds :class:`~amhe_cli.closed_loop.RunSettings` and the
+* :func:`run_settings` builds :class:`~amhe_cli.control.closed_loop.RunSettings` and the
   task from a YAML config (``planner:``, ``weights:``, ``mhe:``, ``kp``, ``kd``,
   ``cycle``, ``task:`` overrides such as ``duration``);
 * :func:`probe_belief` is what ``run`` does without ``--belief``: the lunge probe
@@ -19,16 +19,17 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .belief import Belief, to_plain
-from .closed_loop import MODES, RUN_PARAMS, RunSettings, run_task, task_scene_config
-from .errors import AmheError, check_names
-from .identify import IdentifySettings, identify
-from .mhe import MHESettings
-from .params import ParameterSpace
-from .planner import PlannerSettings
-from .probe import simulate_probe
-from .scene import Scene, infer_scene_config
-from .tasks import CostWeights, Task, get_task
+from amhe_cli.estimation.belief import Belief
+from amhe_cli.io.plain import to_plain
+from amhe_cli.control.closed_loop import MODES, RUN_PARAMS, RunSettings, run_task, task_scene_config
+from amhe_cli.errors import AmheError, check_names
+from amhe_cli.estimation.identify import IdentifySettings, identify
+from amhe_cli.estimation.mhe import MHESettings
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.control.planner import PlannerSettings
+from amhe_cli.control.probing import simulate_probe
+from amhe_cli.model.scene import Scene, infer_scene_config
+from amhe_cli.control.tasks import CostWeights, Task, get_task
 
 CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task"}
 

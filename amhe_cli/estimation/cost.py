@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .clips import ROLES, Clips
-from .errors import AmheError
-from .io.quat import quat_conj, quat_mul, quat_to_rotvec
-from .params import ParameterSpace
-from .rollout import RolloutPool
-from .scene import Scene
+from amhe_cli.estimation.clips import ROLES, Clips
+from amhe_cli.errors import AmheError
+from amhe_cli.io.quat import quat_conj, quat_mul, quat_to_rotvec
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.rollout import RolloutPool
+from amhe_cli.model.scene import Scene
 
 #: Cost given to a candidate whose rollout diverged on a clip.
 DIVERGED = 1e12

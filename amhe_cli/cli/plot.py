@@ -14,7 +14,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .errors import AmheError  # noqa: E402
+from amhe_cli.errors import AmheError  # noqa: E402
 
 
 def _check_png(path) -> Path:
@@ -43,7 +43,7 @@ def plot_identify(path, result, cost_rollout, traj=None) -> Path:
 
     Args:
         path: PNG to write.
-        result: :class:`~amhe_cli.identify.IdentifyResult`.
+        result: :class:`~amhe_cli.estimation.identify.IdentifyResult`.
         cost_rollout: callable (B, d) -> (qpos (B, N_c, H, nq), qvel) over the
             result's clips, i.e. ``RolloutCost.rollout``; called once with the
             prior and the estimate.
@@ -113,8 +113,8 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
     Args:
         path: PNG to write.
         head, rows: the estimates table (``t, name, name_std, …``) of
-            :func:`~amhe_cli.replay.estimates_table`.
-        truth: a :class:`~amhe_cli.replay.TruthSeries` or None.
+            :func:`~amhe_cli.estimation.replay.estimates_table`.
+        truth: a :class:`~amhe_cli.estimation.replay.TruthSeries` or None.
         skipped: (n,) bool, updates whose window held no information (marked).
     """
     path = _check_png(path)
@@ -146,8 +146,8 @@ def plot_run(path, result, task) -> Path:
 
     Args:
         path: PNG to write.
-        result: :class:`~amhe_cli.closed_loop.RunResult`.
-        task: the :class:`~amhe_cli.tasks.Task` it ran.
+        result: :class:`~amhe_cli.control.closed_loop.RunResult`.
+        task: the :class:`~amhe_cli.control.tasks.Task` it ran.
     """
     path = _check_png(path)
     fig, ax = plt.subplots(1, 4, figsize=(17, 4))

@@ -13,12 +13,12 @@ from pathlib import Path
 
 import yaml
 
-from .belief import Belief
-from .errors import AmheError
-from .io.reader import read_log
-from .params import DEFAULT_FREE, ParameterSpace
-from .scene import Scene, SceneConfig, infer_scene_config
-from .trajectory import Trajectory
+from amhe_cli.estimation.belief import Belief
+from amhe_cli.errors import AmheError
+from amhe_cli.io.reader import read_log
+from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
+from amhe_cli.model.scene import Scene, SceneConfig, infer_scene_config
+from amhe_cli.io.trajectory import Trajectory
 
 
 def example_logs() -> list[Path]:
@@ -28,7 +28,7 @@ def example_logs() -> list[Path]:
     checkout, the repository's ``examples/logs``.
     """
     roots = [Path(str(resources.files("amhe_cli"))) / "examples",
-             Path(__file__).resolve().parent.parent / "examples" / "logs"]
+             Path(__file__).resolve().parents[2] / "examples" / "logs"]
     for root in roots:
         if root.is_dir():
             found = sorted(p for p in root.iterdir() if p.suffix == ".mcap")

@@ -31,14 +31,14 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .clips import window_clips
-from .cost import RolloutCost, StateWeights
-from .errors import AmheError
-from .params import ParameterSpace
-from .rollout import RolloutPool
-from .sampling import gaussian_step
-from .scene import Scene
-from .trajectory import Trajectory
+from amhe_cli.estimation.clips import window_clips
+from amhe_cli.estimation.cost import RolloutCost, StateWeights
+from amhe_cli.errors import AmheError
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.rollout import RolloutPool
+from amhe_cli.estimation.sampling import gaussian_step
+from amhe_cli.model.scene import Scene
+from amhe_cli.io.trajectory import Trajectory
 
 #: Default ``W_p`` pull standard deviations per parameter (physical units; inertia as shape ratio).
 DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robot_box_friction": 0.05}
@@ -127,7 +127,7 @@ class MovingHorizonEstimator:
         scene: the model ``f``.
         space: free parameters; its prior mean is the starting estimate ``p̂_0``.
         settings: :class:`MHESettings`.
-        weights: ``W_x`` (default :class:`~amhe_cli.cost.StateWeights`).
+        weights: ``W_x`` (default :class:`~amhe_cli.estimation.cost.StateWeights`).
         pool: rollout pool to share (e.g. with a planner); else one is created.
         nthread: threads of a pool created here.
 

@@ -33,9 +33,9 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
-from .errors import AmheError, check_names
-from .gait import GAITS, Gait
-from .io.quat import quat_to_yaw
+from amhe_cli.errors import AmheError, check_names
+from amhe_cli.control.gait import GAITS, Gait
+from amhe_cli.io.quat import quat_to_yaw
 
 #: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
 HEAD_REACH = 0.28
@@ -109,7 +109,7 @@ class Task:
         box_start: (x, y) [m] of the box centre; the robot starts at the origin facing +x.
         goal: (x, y) [m] the box must reach (T2: the end of the circle arc).
         circle: T2's (centre x, centre y, radius [m], arc [rad]) or None.
-        gait: gait name (:data:`~amhe_cli.gait.GAITS`).
+        gait: gait name (:data:`~amhe_cli.control.gait.GAITS`).
         speed: commanded robot speed [m/s].
         box_speed: speed of the box's reference toward its target [m/s] (T5: the pushing leg's job).
         truth: plant parameters at the start (name -> value).

@@ -1,12 +1,12 @@
 """Offline identification, SPI-style (paper §III-B): CMA-ES over rollout-matching clips.
 
 ``N_c`` clips with horizons drawn uniformly from a range are cut from the log
-(:func:`~amhe_cli.clips.sample_clips`); CMA-ES (the ``cma`` package, ask/tell)
+(:func:`~amhe_cli.estimation.clips.sample_clips`); CMA-ES (the ``cma`` package, ask/tell)
 minimises the shared cost ``J`` (eq. 1) over the free parameters. Beyond SPI:
 the estimate is the minimum of a quadratic fitted to the late generations
-(:mod:`~amhe_cli.surrogate`: robust to the rough floor that rocking contacts
+(:mod:`~amhe_cli.estimation.surrogate`: robust to the rough floor that rocking contacts
 give the cost), and the belief's covariance is the larger of the local Fisher
-information (:mod:`~amhe_cli.uncertainty`) and a bootstrap over clips of that
+information (:mod:`~amhe_cli.estimation.uncertainty`) and a bootstrap over clips of that
 fit, and never narrower than CMA-ES's own search spread when it stopped.
 
 CMA-ES searches in prior-σ units, ``z = (p - p0) / σ_prior``, so a kilogram and a
@@ -22,13 +22,13 @@ from typing import Callable
 import cma
 import numpy as np
 
-from .clips import Clips, sample_clips
-from .cost import RolloutCost, StateWeights
-from .params import DEFAULT_FREE, ParameterSpace
-from .scene import Scene
-from .trajectory import Trajectory
-from .surrogate import bootstrap_minima, fit_valley
-from .uncertainty import Curvature, curvature, with_covariance
+from amhe_cli.estimation.clips import Clips, sample_clips
+from amhe_cli.estimation.cost import RolloutCost, StateWeights
+from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
+from amhe_cli.model.scene import Scene
+from amhe_cli.io.trajectory import Trajectory
+from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley
+from amhe_cli.estimation.uncertainty import Curvature, curvature, with_covariance
 
 
 @dataclass

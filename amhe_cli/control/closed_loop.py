@@ -2,9 +2,9 @@
 
 :func:`run_task` runs one task in the sim plant:
 
-* the **plant** (:class:`~amhe_cli.plant.SimPlant`) is its own MuJoCo model with
+* the **plant** (:class:`~amhe_cli.plants.sim.SimPlant`) is its own MuJoCo model with
   the true parameters and a 2 ms step; task events act on it only;
-* the **planner** (:class:`~amhe_cli.planner.Planner`) has its own model at a
+* the **planner** (:class:`~amhe_cli.control.planner.Planner`) has its own model at a
   10 ms step and sees the plant only through its measured state;
 * the **estimator** (:class:`EstimatorThread`) runs the MHE of ``mhe-replay``
   in a thread of its own over the plant's recording and swaps each new estimate
@@ -35,18 +35,19 @@ from typing import Callable
 
 import numpy as np
 
-from .belief import Belief, to_plain
-from .errors import AmheError, check_names
-from .io.quat import quat_to_yaw
-from .io.writer import write_mcap
-from .mhe import MHESettings, MovingHorizonEstimator, Update
-from .params import ParameterSpace
-from .plant import SimPlant
-from .probe import TRUTH_RECORD
-from .planner import Planner, PlannerSettings
-from .scene import Scene, SceneConfig
-from .tasks import Task
-from .trajectory import Trajectory
+from amhe_cli.estimation.belief import Belief
+from amhe_cli.io.plain import to_plain
+from amhe_cli.errors import AmheError, check_names
+from amhe_cli.io.quat import quat_to_yaw
+from amhe_cli.io.writer import write_mcap
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, Update
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.plants.sim import SimPlant
+from amhe_cli.io.truth import TRUTH_RECORD
+from amhe_cli.control.planner import Planner, PlannerSettings
+from amhe_cli.model.scene import Scene, SceneConfig
+from amhe_cli.control.tasks import Task
+from amhe_cli.io.trajectory import Trajectory
 
 MODES = ("true", "baseline", "adaptive")
 #: Parameters a belief gives the planner.
@@ -128,8 +129,8 @@ class RunSettings:
     Attributes:
         mode: ``true``, ``baseline`` or ``adaptive``.
         realtime: run the plant on the wall clock (see module docstring).
-        planner: :class:`~amhe_cli.planner.PlannerSettings`.
-        mhe: :class:`~amhe_cli.mhe.MHESettings` of the estimator thread.
+        planner: :class:`~amhe_cli.control.planner.PlannerSettings`.
+        mhe: :class:`~amhe_cli.estimation.mhe.MHESettings` of the estimator thread.
         cycle: plant time per planner cycle in lock-step [s] (multiple of the
             planner's dt); in realtime mode the planner's own compute time.
         seed: seeds the planner's and the estimator's sampling.

@@ -20,11 +20,11 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import yaml
 
-from .errors import AmheError
-from .params import PARAMETERS
+from amhe_cli.errors import AmheError
+from amhe_cli.io.plain import to_plain
+from amhe_cli.model.params import PARAMETERS
 
 FORMAT_VERSION = 1
 
@@ -87,9 +87,9 @@ class Belief:
         """The belief an identification leaves: estimate, std, correlation and cost of ``result``.
 
         Args:
-            result: an :class:`~amhe_cli.identify.IdentifyResult` over ``space``
-                (a :class:`~amhe_cli.params.ParameterSpace`).
-            scene_config: the :class:`~amhe_cli.scene.SceneConfig` the values refer to.
+            result: an :class:`~amhe_cli.estimation.identify.IdentifyResult` over ``space``
+                (a :class:`~amhe_cli.model.params.ParameterSpace`).
+            scene_config: the :class:`~amhe_cli.model.scene.SceneConfig` the values refer to.
             provenance: where the estimate came from (command, log, settings …).
         """
         s = result.summary()
@@ -126,16 +126,3 @@ class Belief:
         return cls(values=values, std=std, free=list(d.get("free", [])), labels=list(corr.get("labels", [])),
                    correlation=corr.get("matrix", []), cost=d.get("cost", {}), scene=d.get("scene", {}),
                    provenance=d.get("provenance", {}))
-
-
-def to_plain(v):
-    """numpy scalars and arrays (also inside dicts and lists) -> plain Python, for YAML/JSON."""
-    if isinstance(v, dict):
-        return {k: to_plain(x) for k, x in v.items()}
-    if isinstance(v, (list, tuple)):
-        return [to_plain(x) for x in v]
-    if isinstance(v, np.ndarray):
-        return to_plain(v.tolist())
-    if isinstance(v, (np.floating, np.integer, np.bool_)):
-        return v.item()
-    return v

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import AmheError
-from .scene import Scene
-from .trajectory import Trajectory
+from amhe_cli.errors import AmheError
+from amhe_cli.model.scene import Scene
+from amhe_cli.io.trajectory import Trajectory
 
 ROLES = ("base", "joint_states", "box")
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .cost import RolloutCost
+from amhe_cli.estimation.cost import RolloutCost
 
 
 @dataclass

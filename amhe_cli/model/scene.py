@@ -17,13 +17,14 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, replace
 from importlib import resources
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
-from .errors import AmheError
-from .io.quat import quat_face_tilt
-from .trajectory import GO1_JOINTS, Trajectory
+from amhe_cli.errors import AmheError
+from amhe_cli.io.quat import quat_face_tilt
+from amhe_cli.io.trajectory import GO1_JOINTS, Trajectory
 
 #: Standing joint pose per leg (hip, thigh, calf) [rad], DESIGN.md §5.
 STAND_JOINTS = np.tile([0.0, 0.9, -1.8], 4)
@@ -34,8 +35,9 @@ FEET = ("FR_foot", "FL_foot", "RR_foot", "RL_foot")
 
 
 def model_path(name: str = "go1.xml") -> str:
-    """Filesystem path of a model shipped inside the package (``amhe_cli/models``)."""
-    return str(resources.files("amhe_cli") / "models" / name)
+    """Filesystem path of a bundled MJCF: ``amhe_cli/models`` installed, the repository's ``models/`` in a checkout."""
+    installed = Path(str(resources.files("amhe_cli"))) / "models" / name
+    return str(installed if installed.exists() else Path(__file__).resolve().parents[2] / "models" / name)
 
 
 @dataclass(frozen=True)

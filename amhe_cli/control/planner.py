@@ -6,11 +6,11 @@ Each control cycle the planner
 2. draws ``N`` sequences of joint-target *offsets* around the gait reference —
    ``K`` spline knots per joint, interpolated by a natural cubic spline over the
    horizon — and rolls them out under its own model ``f(p̂)`` through the shared
-   rollout pool (:class:`~amhe_cli.rollout.RolloutPool`),
-3. scores them with the task cost (:meth:`~amhe_cli.tasks.Task.stage_cost`),
+   rollout pool (:class:`~amhe_cli.model.rollout.RolloutPool`),
+3. scores them with the task cost (:meth:`~amhe_cli.control.tasks.Task.stage_cost`),
 4. moves the mean by MPPI weighting; and **only when the gait's contact mode
    changes** it first refines mean and σ over ``L_MPOPI`` loops of the elite
-   update shared with the MHE (:func:`~amhe_cli.sampling.gaussian_step`) — the
+   update shared with the MHE (:func:`~amhe_cli.estimation.sampling.gaussian_step`) — the
    paper's cheaper MPOPI, the last distribution warm-starting the cycles in
    between.
 
@@ -26,13 +26,13 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from .errors import AmheError, check_names
-from .gait import Gait
-from .params import ParameterSpace
-from .rollout import RolloutPool
-from .sampling import gaussian_step, mppi_weights
-from .scene import Scene
-from .tasks import Task
+from amhe_cli.errors import AmheError, check_names
+from amhe_cli.control.gait import Gait
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.rollout import RolloutPool
+from amhe_cli.estimation.sampling import gaussian_step, mppi_weights
+from amhe_cli.model.scene import Scene
+from amhe_cli.control.tasks import Task
 
 
 @dataclass
@@ -44,7 +44,7 @@ class PlannerSettings:
         horizon: steps per rollout (40 × 10 ms = 0.4 s, most of a trot cycle).
         samples: ``N`` rollouts per batch (sample 0 is the mean itself).
         knots: spline knots per joint over the horizon.
-        temperature: MPPI ``λ`` on spread-normalised costs (:func:`~amhe_cli.sampling.mppi_weights`).
+        temperature: MPPI ``λ`` on spread-normalised costs (:func:`~amhe_cli.estimation.sampling.mppi_weights`).
         noise: σ of the knot offsets for (hip, thigh, calf) [rad].
         refine_loops: ``L_MPOPI`` elite-update loops at a contact-mode switch.
         refine_alpha: learning rate of those loops.
@@ -214,7 +214,7 @@ class Planner:
         Args:
             state: the plant's state in the planner scene's mjSTATE_FULLPHYSICS layout.
             t: time [s] (the gait phase clock).
-            cmd: the task's :meth:`~amhe_cli.tasks.Task.command` for this cycle.
+            cmd: the task's :meth:`~amhe_cli.control.tasks.Task.command` for this cycle.
         Returns:
             a :class:`Plan`; apply ``controls[0]`` (and further rows if the next
             cycle comes late).

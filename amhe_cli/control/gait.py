@@ -1,10 +1,10 @@
 """Gait references: joint-position targets and contact schedules over a gait cycle.
 
-The planner (:mod:`~amhe_cli.planner`) samples joint targets *around* a gait
+The planner (:mod:`~amhe_cli.control.planner`) samples joint targets *around* a gait
 reference, so the reference only has to be a plausible periodic motion for a
 commanded base velocity; balance and steering come from the sampling. A
 :class:`Gait` generates it from foot trajectories in each hip's sagittal plane
-through the leg inverse kinematics of :mod:`~amhe_cli.maneuver`:
+through the leg inverse kinematics of :mod:`~amhe_cli.control.maneuver`:
 
 * stance: the foot slides backward under the hip at the commanded speed,
   covering the step length ``L = v · duty · period``;
@@ -27,8 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .maneuver import leg_ik
-from .scene import STAND_JOINTS
+from amhe_cli.control.maneuver import leg_ik
+from amhe_cli.model.scene import STAND_JOINTS
 
 #: Leg order of the joint vector (GO1_JOINTS): FR, FL, RR, RL.
 LEGS = ("FR", "FL", "RR", "RL")

@@ -1,6 +1,6 @@
 """Replaying a log through the moving horizon estimator, with honest timing.
 
-:func:`replay` steps a :class:`~amhe_cli.mhe.MovingHorizonEstimator` along a
+:func:`replay` steps a :class:`~amhe_cli.estimation.mhe.MovingHorizonEstimator` along a
 recorded trajectory. Two clocks:
 
 * as fast as possible (default): an update at every ``Δt_update`` of log time,
@@ -26,9 +26,9 @@ from typing import Callable
 
 import numpy as np
 
-from .mhe import MovingHorizonEstimator, Update
-from .params import ParameterSpace
-from .trajectory import Trajectory
+from amhe_cli.estimation.mhe import MovingHorizonEstimator, Update
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.io.trajectory import Trajectory
 
 
 @dataclass
@@ -134,7 +134,7 @@ def truth_series(log: str, traj: Trajectory, csv_path: str | None = None) -> Tru
                 elif name != "box_inertia" and present:
                     vals[name] = np.array([float(r[present[0]]) for r in rows])
             return TruthSeries(t, vals)
-    from .probe import metadata_truth
+    from amhe_cli.io.truth import metadata_truth
     rec = metadata_truth(traj)
     if rec:
         vals = {k: np.array([v] * 2, dtype=float) for k, v in rec.items()}

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .scene import STAND_JOINTS
+from amhe_cli.model.scene import STAND_JOINTS
 
 THIGH = 0.213  #: thigh length [m]
 CALF = 0.213   #: calf length [m]

@@ -12,10 +12,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from .belief import to_plain
-from .params import ParameterSpace, PARAMETERS
-from .scene import Scene, SceneConfig
-from .trajectory import Trajectory
+from amhe_cli.io.plain import to_plain
+from amhe_cli.model.params import ParameterSpace, PARAMETERS
+from amhe_cli.model.scene import Scene, SceneConfig
+from amhe_cli.io.trajectory import Trajectory
 
 
 class SimPlant:
@@ -23,7 +23,7 @@ class SimPlant:
 
     Args:
         config: scene geometry; ``timestep`` is the plant's step.
-        truth: name -> true value for any of :data:`~amhe_cli.params.PARAMETERS`.
+        truth: name -> true value for any of :data:`~amhe_cli.model.params.PARAMETERS`.
         record_dt: grid of the recorded trajectory [s] (a multiple of the plant step).
         control_period: how long each position target is held [s].
 
@@ -70,7 +70,7 @@ class SimPlant:
         """Apply the task events of ``events`` that are due now (time or box x) to the plant.
 
         Args:
-            events: pending :class:`~amhe_cli.tasks.Event` objects; the fired ones are removed.
+            events: pending :class:`~amhe_cli.control.tasks.Event` objects; the fired ones are removed.
         Returns:
             the fired events, in order.
         """

@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from .errors import AmheError
-from .scene import Scene
+from amhe_cli.errors import AmheError
+from amhe_cli.model.scene import Scene
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,58 @@
+"""``amhe identify``: box parameters from a log, SPI-style CMA-ES over short clips."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from amhe_cli.cli.common import (identify_options, log_options, make_settings, output_path,
+                                 parse_smooth, print_summary, run_identify, save_outputs)
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_size, parse_topics
+
+@click.command("identify")
+@click.argument("log", required=False, type=click.Path())
+@log_options
+@identify_options
+@click.option("--t-range", default=None, metavar="T0,T1", help="Use only this part of the log [s].")
+@click.option("--out", default=None, type=click.Path(), help="Belief YAML to write (default: <log stem>.belief.yaml).")
+@click.option("--force", is_flag=True, help="Overwrite an existing --out file.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the results and nothing else.")
+@click.option("--plot", type=click.Path(), default=None, help="Write a PNG: cost over generations, recorded vs predicted box.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips, horizon, popsize, generations,
+                 prior_weight, t_range, seed, threads, out, force, as_json, plot, quiet):
+    """Identify box mass, inertia and box-floor friction from LOG (SPI-style CMA-ES).
+
+    With no LOG, runs on the bundled example log.
+    """
+    from amhe_cli.cli.plot import check_plot_path
+    if log is None:
+        logs = example_logs()
+        if not logs:
+            raise AmheError("no LOG given and no bundled example found: expected 'amhe identify LOG'")
+        log = str(logs[0])
+        if not as_json:
+            click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
+    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range)
+    smooth = parse_smooth(smooth)
+    out_path = output_path(out, log, ".belief.yaml", force)
+    plot_path = check_plot_path(plot)
+    problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
+                           box_size=parse_box_size(box_size), smooth=smooth)
+    result = run_identify(problem, settings, quiet or as_json, threads)
+    save_outputs(problem, result, "identify", log, out_path, force, plot_path, threads)
+    if as_json:
+        s = result.summary()
+        s["belief"] = str(out_path)
+        if plot_path is not None:
+            s["plot"] = str(plot_path)
+        click.echo(json.dumps(s))
+        return
+    click.echo(f"log {log}: {len(problem.traj) * problem.traj.dt:.1f} s, box floor z={problem.scene.config.floor_height:+.3f} m, "
+               f"robot floor z={problem.scene.config.robot_floor_height:+.3f} m")
+    from amhe_cli.io.truth import metadata_truth
+    print_summary(result, truth=metadata_truth(problem.traj))
+    click.echo(f"belief written to {out_path}" + (f"; plot to {plot_path}" if plot_path else ""))

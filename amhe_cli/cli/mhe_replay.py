@@ -1,0 +1,162 @@
+"""``amhe mhe-replay``: the sliding-window estimator along a log, and its ablation sweeps."""
+
+from __future__ import annotations
+
+import json
+from csv import writer as csv_writer
+
+import click
+import numpy as np
+
+from amhe_cli.cli.common import log_options, output_path, parse_smooth, progress_bar
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.problem import load_problem, parse_box_size, parse_topics
+from amhe_cli.model.params import PARAMETERS, parse_names
+
+@click.command("mhe-replay")
+@click.argument("log", type=click.Path())
+@log_options
+@click.option("--params", default="box_mass,box_friction", show_default=True, metavar="NAMES",
+              help=f"Free parameters, from: {', '.join(PARAMETERS)} (an unfree inertia follows the mass).")
+@click.option("--prior", type=click.Path(), default=None, help="Belief YAML (from identify or probe) to start from.")
+@click.option("--window", default=1.0, show_default=True, type=float, help="Window H [s].")
+@click.option("--every", default=0.5, show_default=True, type=float, help="Update period Δt_update [s].")
+@click.option("--iters", default=3, show_default=True, type=int, help="Iterations L_MHE per update.")
+@click.option("--samples", default=10, show_default=True, type=int, help="Candidates B per iteration.")
+@click.option("--alpha", default=0.8, show_default=True, type=float, help="Learning rate α.")
+@click.option("--clip", default=0.1, show_default=True, type=float,
+              help="Clip length [s] the window is cut into (reset to recorded states); 0 = one piece.")
+@click.option("--max-steps", default=150, show_default=True, type=int,
+              help="Simulated steps per candidate per update (most informative clips first).")
+@click.option("--realtime", is_flag=True, help="Replay on the live clock: estimates usable only after their compute.")
+@click.option("--truth", "truth_csv", type=click.Path(), default=None,
+              help="Ground-truth CSV (default: <log stem>.truth.csv beside the log, if any).")
+@click.option("--sweep", default=None, metavar="NAME=V1,V2,…",
+              help="Ablation: rerun for each value of one setting (window, every, iters, samples, alpha, clip, max_steps).")
+@click.option("--seeds", default=1, show_default=True, type=click.IntRange(1, 1000), help="Seeds per sweep value.")
+@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--threads", default=None, type=click.IntRange(1, 1024))
+@click.option("--out", default=None, type=click.Path(), help="Estimates CSV (default: <log stem>.mhe.csv).")
+@click.option("--mcap", "mcap_out", default=None, type=click.Path(),
+              help="Also write the estimates to this MCAP on /amhe/estimate (Float64MultiArray).")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object and nothing else.")
+@click.option("--plot", type=click.Path(), default=None, help="PNG: each parameter over time, ±1σ, truth.")
+@click.option("--quiet", "-q", is_flag=True)
+def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
+                   clip, max_steps, realtime, truth_csv, sweep, seeds, seed, threads, out, mcap_out, force, as_json,
+                   plot, quiet):
+    """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4)."""
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    from amhe_cli.cli.plot import check_plot_path, plot_estimates
+    from amhe_cli.estimation.replay import estimates_table, replay, tracking_error, truth_series
+    settings = MHESettings(window=window, every=every, iters=iters, samples=samples, alpha=alpha,
+                           clip=clip if clip > 0 else None, max_steps=max_steps, seed=seed)
+    settings.check()
+    free = parse_names(params)
+    smooth = parse_smooth(smooth)
+    plot_path = check_plot_path(plot)
+    if sweep is None:
+        out_path = output_path(out, log, ".mhe.csv", force)
+        mcap_path = output_path(mcap_out, log, ".mhe.mcap", force) if mcap_out else None
+    problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
+                           box_size=parse_box_size(box_size), smooth=smooth)
+    if settings.window > problem.traj.duration:
+        raise AmheError(f"--window {settings.window} s is longer than the log ({problem.traj.duration:.2f} s)")
+    truth = truth_series(log, problem.traj, truth_csv)
+    if truth_csv and truth is None:
+        raise AmheError(f"--truth {truth_csv}: expected a CSV with a 't' column and truth columns")
+
+    def run_one(st: MHESettings):
+        bar = progress_bar(round(problem.traj.duration, 2), "mhe-replay", quiet or as_json,
+                        counter="{n:.1f}/{total:.1f} s of log")
+        with MovingHorizonEstimator(problem.scene, problem.space, st, nthread=threads) as mhe:
+            res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n))
+        bar.close()
+        return res
+
+    if sweep is not None:
+        name, sep, vals = sweep.partition("=")
+        if not sep or name not in ("window", "every", "iters", "samples", "alpha", "clip", "max_steps"):
+            raise AmheError(f"--sweep {sweep!r}: expected NAME=V1,V2,… with NAME one of window, every, iters, "
+                            "samples, alpha, clip, max_steps")
+        try:
+            values = [float(v) for v in vals.split(",")]
+        except ValueError:
+            raise AmheError(f"--sweep {sweep!r}: expected numbers after '='") from None
+        rows = []
+        for v in values:
+            errs, times = [], []
+            for k in range(seeds):
+                st = MHESettings(**{**settings.to_dict(), name: (int(v) if name in ("iters", "samples", "max_steps")
+                                                               else (v if not (name == "clip" and v == 0) else None)),
+                                    "seed": seed + k})
+                st.check()
+                res = run_one(st)
+                errs.append(tracking_error(problem.space, res, truth) if truth else {})
+                times.append(res.compute_time / max(len(res.updates), 1))
+            row = {"value": v, "update_s": (float(np.mean(times)), float(np.std(times)))}
+            for key in ("box_mass", "box_friction"):
+                e = [x[key] for x in errs if key in x]
+                if e:
+                    row[key] = (float(np.mean(e)), float(np.std(e)))
+            rows.append(row)
+        if as_json:
+            click.echo(json.dumps({"sweep": name, "seeds": seeds, "rows": rows}))
+            return
+        click.echo(f"sweep of {name} over {seeds} seed(s); tracking error vs truth "
+                   f"({'box_mass RMS %, box_friction RMS' if truth else 'no truth in this log'}), compute per update")
+        click.echo(f"{name:>10}  {'mass err %':>16}  {'friction err':>18}  {'update s':>14}")
+        for r in rows:
+            m = r.get("box_mass")
+            f = r.get("box_friction")
+            click.echo(f"{r['value']:>10g}  {(f'{m[0]:6.2f} ± {m[1]:5.2f}' if m else '-'):>16}  "
+                       f"{(f'{f[0]:.4f} ± {f[1]:.4f}' if f else '-'):>18}  "
+                       f"{r['update_s'][0]:6.3f} ± {r['update_s'][1]:5.3f}")
+        return
+
+    res = run_one(settings)
+    head, table = estimates_table(problem.space, res)
+    with open(out_path, "w", newline="") as fh:
+        w = csv_writer(fh)
+        w.writerow(head)
+        w.writerows(table.tolist())
+    if mcap_path is not None:
+        from amhe_cli.io.writer import McapLog
+        t0 = problem.traj.meta.get("t0_ns", 0) * 1e-9
+        with McapLog(mcap_path, overwrite=force) as mlog:
+            labels = head[1:]
+            mlog.write_array("/amhe/estimate", table[:, 0] + t0, table[:, 1:], labels)
+            mlog.write_metadata("amhe_mhe", {k: json.dumps(v) for k, v in settings.to_dict().items()})
+    skipped = np.array([u.skipped for u in res.updates])
+    if plot_path is not None:
+        plot_estimates(plot_path, head, table, truth, skipped)
+    errors = tracking_error(problem.space, res, truth) if truth else {}
+    lags = res.lags
+    summary = {
+        "updates": len(res.updates), "informative_updates": int((~skipped).sum()),
+        "final": {h: float(table[-1, i]) for i, h in enumerate(head) if i > 0} if len(table) else {},
+        "realtime": res.realtime, "realtime_factor": res.realtime_factor, "behind": res.behind,
+        "lag_s": {"mean": float(lags.mean()) if len(lags) else 0.0, "max": float(lags.max()) if len(lags) else 0.0},
+        "tracking_error": errors, "csv": str(out_path),
+    }
+    if mcap_path is not None:
+        summary["mcap"] = str(mcap_path)
+    if plot_path is not None:
+        summary["plot"] = str(plot_path)
+    if as_json:
+        click.echo(json.dumps(summary))
+        return
+    click.echo(f"{len(res.updates)} updates ({summary['informative_updates']} informative) over "
+               f"{res.duration:.1f} s of log; compute {res.compute_time:.1f} s")
+    for h, v in summary["final"].items():
+        if not h.endswith("_std"):
+            click.echo(f"  final {h} = {v:.4g} ± {summary['final'][h + '_std']:.2g}")
+    if errors:
+        click.echo("tracking error vs truth: " + ", ".join(
+            f"{k} {v:.2f} %" if k == "box_mass" else f"{k} {v:.4f}" for k, v in errors.items()))
+    if realtime:
+        click.echo(f"realtime factor {res.realtime_factor:.2f}; {res.behind} update(s) fell behind; "
+                   f"lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
+    click.echo(f"estimates written to {out_path}" + (f", {mcap_path}" if mcap_path else "")
+               + (f"; plot to {plot_path}" if plot_path else ""))

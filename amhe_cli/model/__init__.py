@@ -1,0 +1,1 @@
+"""The model: scene (MJCF + box + floor), physical parameters, and the rollout pool."""
