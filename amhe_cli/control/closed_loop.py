@@ -14,7 +14,7 @@ Modes differ only in the planner's parameters: ``true`` gets the plant's truth
 (and every change of it), ``baseline`` a fixed belief, ``adaptive`` the same
 belief and then the MHE's estimates.
 
-Timing: by default the plant waits for the planner (lock-step; reproducible for a
+Timing (the sim plant's; a real robot never waits): by default the plant waits for the planner (lock-step; reproducible for a
 seed — the MHE's update for the window ending at ``t`` is applied at
 ``t + every`` in plant time, the thread computing it meanwhile). With
 ``realtime`` the plant runs on for as long as each planner cycle took (with the
@@ -42,6 +42,7 @@ from amhe_cli.io.quat import quat_to_yaw
 from amhe_cli.io.writer import write_mcap
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, Update
 from amhe_cli.model.params import ParameterSpace
+from amhe_cli.plants.base import Plant, PlantFailure
 from amhe_cli.plants.sim import SimPlant
 from amhe_cli.io.truth import TRUTH_RECORD
 from amhe_cli.control.planner import Planner, PlannerSettings
@@ -186,6 +187,8 @@ class RunResult:
         labels: (d,) labels of the estimate columns.
         messages: the run's log (plant events, phase changes and all of ``warnings``).
         warnings: the messages a user should see: a fall, a lost box, estimator failures and skipped updates.
+        failure: why the plant stopped early (a safety trip, a lost link), else None.
+        extras: the plant's raw streams (:meth:`~amhe_cli.plants.base.Plant.extras`), recorded beside the trajectory.
     """
 
     success: bool
@@ -203,11 +206,16 @@ class RunResult:
     box_path: np.ndarray | None = None
     speed: np.ndarray | None = None
     plan_times: np.ndarray | None = None
+    failure: str | None = None
+    extras: dict = field(default_factory=dict)
 
     def metrics(self) -> dict:
-        """The JSON object ``amhe run --json`` prints."""
-        return {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
-                "rmse": self.rmse}
+        """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed)."""
+        out = {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
+               "rmse": self.rmse}
+        if self.failure is not None:
+            out["failure"] = self.failure
+        return out
 
 
 def task_scene_config(task: Task, dt: float, kp: float = 55.0, kd: float = 3.0) -> SceneConfig:
@@ -216,11 +224,13 @@ def task_scene_config(task: Task, dt: float, kp: float = 55.0, kd: float = 3.0) 
                        kp=(float(kp),) * 12, kd=(float(kd),) * 12)
 
 
-def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01) -> SimPlant:
-    """The task's sim plant (2 ms, true parameters, PD gains ``kp``/``kd``), the robot standing at the
-    origin and the box at its start; each target is held ``control_period`` [s]."""
+def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, realtime: bool = False,
+               cycle: float = 0.02) -> SimPlant:
+    """The task's sim plant (2 ms, true parameters and events, PD gains ``kp``/``kd``), the robot standing
+    at the origin and the box at its start; each target is held ``control_period`` [s]; lock-step runs
+    ``cycle`` [s] of each plan, ``realtime`` runs on the wall clock (see :class:`~amhe_cli.plants.sim.SimPlant`)."""
     plant = SimPlant(task_scene_config(task, 0.002, kp, kd), truth=task.truth, record_dt=0.002,
-                     control_period=control_period)
+                     control_period=control_period, events=task.events, realtime=realtime, cycle=cycle)
     plant.reset(*plant.scene.standing_state(box_xy=task.box_start))
     return plant
 
@@ -260,61 +270,76 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
 
 
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
-             progress: Callable[[float], None] | None = None) -> RunResult:
-    """Run ``task`` in the sim plant with the planner in ``settings.mode``.
+             progress: Callable[[float], None] | None = None, plant: Plant | None = None) -> RunResult:
+    """Run ``task`` on a plant with the planner in ``settings.mode`` (paper Algorithm 1).
 
     Args:
         task: the task (start, goal, truth, events).
         belief: starting belief of ``baseline``/``adaptive`` (ignored by ``true``).
         settings: :class:`RunSettings`.
         progress: called with the plant time [s] after every cycle.
+        plant: the :class:`~amhe_cli.plants.base.Plant` to drive (default: the
+            task's sim plant, lock-step unless ``settings.realtime``). It is
+            closed at the end, with the reason when the run failed.
     Returns:
-        :class:`RunResult`.
+        :class:`RunResult`; ``failure`` says why a run ended early — a plant
+        failure (a safety trip, a lost link), Ctrl-C, or an exception in the
+        loop: the plant was closed with that reason (a robot damped) and the
+        recording up to then is kept.
     Raises:
-        AmheError: bad settings, or a belief missing for a mode that needs one.
+        AmheError: bad settings, a belief missing for a mode that needs one, or
+            ``true`` mode on a plant whose truth nobody knows (the plant is closed first).
     """
     s = settings or RunSettings()
     s.check()
     pdt = s.planner.dt
-    plant = make_plant(task, s.kp, s.kd, pdt)
-
-    planner, space = make_planner(task, s, belief, plant.truth_values)
-    estimator = None
-    if s.mode == "adaptive":
-        mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
-        mspace = ParameterSpace(mscene, free=s.mhe_params, prior=space.values(space.mean0),
-                                prior_std=_belief_std(belief))
-        mhe_settings = replace(s.mhe, seed=s.seed)
-        estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
-    pscene = planner.scene
+    if plant is None:
+        plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime, cycle=s.cycle)
     messages: list[str] = []
     warnings: list[str] = []
 
     def warn(text: str) -> None:
         messages.append(text), warnings.append(text)
-    v0, sd0 = space.physical(space.mean0, space.std0)
-    est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
 
-    def swap(values: np.ndarray, std: np.ndarray, t: float) -> None:
-        planner.set_params(values)
-        v, sd = space.physical(values, std)
-        est_t.append(t), est_v.append(v), est_s.append(sd)
-
-    half_depth = TASK_BOX_SIZE[0] / 2
-    sc = plant.scene
-    cycle_steps = max(1, int(round(s.cycle / pdt)))
-    next_update = s.mhe.window
-    pending = False
+    failure = None
+    estimator, planner = None, None
     plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
     costs, speeds, cmd_speeds, box_path = [], [], [], []
-    pending_events = list(task.events)
-    plan, prev_used = None, 0
-    phase = None
     try:
-        while plant.data.time < task.duration - 1e-9:
-            t = float(plant.data.time)
-            q, v = plant.data.qpos.copy(), plant.data.qvel.copy()
+        if s.mode == "true" and plant.truth_values is None:
+            raise AmheError("mode true needs the plant's true parameters, and this plant has none "
+                            "(a real robot): use --mode baseline or adaptive")
+        planner, space = make_planner(task, s, belief, plant.truth_values or {})
+        if s.mode == "adaptive":
+            mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
+            mspace = ParameterSpace(mscene, free=s.mhe_params, prior=space.values(space.mean0),
+                                    prior_std=_belief_std(belief))
+            mhe_settings = replace(s.mhe, seed=s.seed)
+            estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
+    except BaseException as exc:
+        plant.close(f"{type(exc).__name__}: {exc}")
+        if planner is not None:
+            planner.close()
+        raise
+    try:
+        pscene = planner.scene
+        v0, sd0 = space.physical(space.mean0, space.std0)
+        est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
+
+        def swap(values: np.ndarray, std: np.ndarray, t: float) -> None:
+            planner.set_params(values)
+            v, sd = space.physical(values, std)
+            est_t.append(t), est_v.append(v), est_s.append(sd)
+
+        half_depth = TASK_BOX_SIZE[0] / 2
+        sc = plant.scene
+        next_update = s.mhe.window
+        pending = False
+        phase = None
+        m = plant.measure()
+        while m.t < task.duration - 1e-9:
+            t, q, v = m.t, m.qpos, m.qvel
             box_xy = q[sc.box_qpos[:2]]
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
             cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth)
@@ -325,7 +350,6 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     messages.append(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
             state = pscene.full_state(q[None], v[None])[0]
-            prev = plan
             plan = planner.plan(state, t, cmd)
             plan_times.append(plan.compute_time)
             # executed-trajectory metrics at the cycle start
@@ -336,31 +360,21 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
                                                box_quat=q[sc.box_qpos[3:]])))
-            last = len(plan.controls) - 1
-            if s.realtime:  # while the planner computed, the plant ran on with the previous plan's next targets
-                lag = int(np.ceil(plan.compute_time / pdt))
-                rows = [prev.controls[min(prev_used + i, last)] for i in range(lag)] if prev is not None \
-                    else [plan.controls[0]] * lag
-                rows += [plan.controls[min(lag, last)]]
-                prev_used = lag + 1
-            else:
-                rows = plan.controls[:cycle_steps]
-            for row in rows:
-                plant.step(row)
-                for ev in plant.fire_due(pending_events):
-                    messages.append(f"t={plant.data.time:.2f} s: plant event {ev.param} -> {ev.value}")
-                    if s.mode == "true":
-                        swap(space.vector(plant.truth_values), np.zeros(space.dim), float(plant.data.time))
-            now = float(plant.data.time)
-            if plant.data.qpos[sc.base_qpos[2]] < task.fall_height:
+            for t_ev, ev in plant.execute(plan.controls, pdt, plan.compute_time):
+                messages.append(f"t={t_ev:.2f} s: plant event {ev.param} -> {ev.value}")
+                if s.mode == "true":
+                    swap(space.vector(plant.truth_values), np.zeros(space.dim), t_ev)
+            m = plant.measure()
+            now = m.t
+            if m.qpos[sc.base_qpos[2]] < task.fall_height:
                 fell = True
-                warn(f"t={now:.2f} s: the robot fell (base at {plant.data.qpos[sc.base_qpos[2]]:.3f} m)")
+                warn(f"t={now:.2f} s: the robot fell (base at {m.qpos[sc.base_qpos[2]]:.3f} m)")
                 break
-            if task.goal_error(plant.data.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
+            if task.goal_error(m.qpos[sc.box_qpos[:2]]) <= task.goal_tol:
                 t_reach = now
                 break
             if estimator is not None:
-                res = estimator.poll(wait=not s.realtime and pending and now >= next_update - 1e-9)
+                res = estimator.poll(wait=not plant.realtime and pending and now >= next_update - 1e-9)
                 if res is not None:
                     pending = False
                     if not res.skipped:
@@ -373,25 +387,37 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     else:
                         warn(f"t={now:.2f} s: MHE update skipped, the last one is still running")
                     next_update += s.mhe.every
+            for text in plant.take_messages():
+                warn(f"t={now:.2f} s: {text}")
             if progress is not None:
                 progress(now)
+    except PlantFailure as exc:
+        failure = str(exc)
+    except KeyboardInterrupt:
+        failure = "interrupted (Ctrl-C)"
+    except Exception as exc:  # noqa: BLE001 - a crash anywhere ends the run with the plant damped, the recording kept
+        failure = f"{type(exc).__name__} in the closed loop: {exc}"
     finally:
         wall = time.perf_counter() - wall0
+        plant.close(failure)
         planner.close()
         if estimator is not None:
             estimator.close()
+    if failure is not None:
+        warn(f"run stopped: {failure}")
     traj = plant.trajectory()
-    box_final = traj.box_pos[-1, :2]
+    box_final = traj.box_pos[-1, :2] if len(traj) else np.asarray(task.box_start, dtype=float)
     e_g = task.goal_error(box_final)
     speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)
     return RunResult(
-        success=bool(e_g <= task.success_radius and not fell), e_g=e_g, J=float(np.mean(costs)),
-        t_exec=float(t_reach if t_reach is not None else traj.t[-1]),
-        rmse=float(np.sqrt(np.mean((speeds - cmd_speeds) ** 2))), fell=fell,
+        success=bool(e_g <= task.success_radius and not fell and failure is None), e_g=e_g,
+        J=float(np.mean(costs)) if costs else float("nan"),
+        t_exec=float(t_reach if t_reach is not None else (traj.t[-1] if len(traj) else 0.0)),
+        rmse=float(np.sqrt(np.mean((speeds - cmd_speeds) ** 2))) if len(speeds) else float("nan"), fell=fell,
         control_hz=len(plan_times) / wall if wall > 0 else float("nan"), traj=traj,
         estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
         messages=messages, warnings=warnings, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
-        plan_times=np.array(plan_times),
+        plan_times=np.array(plan_times), failure=failure, extras=plant.extras(),
     )
 
 
@@ -404,31 +430,38 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     the start (``amhe_truth`` metadata), the run settings and metrics
     (``amhe_run``) and what went wrong along the way (``amhe_run_log``). The CSV
     holds the truth over time in the shared logs' columns (``t``,
-    ``box_mass_kg``, ``mu_floor_at_box_center``).
+    ``box_mass_kg``, ``mu_floor_at_box_center``) where the truth is known (not on a
+    real robot). The plant's raw streams (``result.extras``: topic -> (t, values,
+    labels), e.g. the Go1's IMU and foot forces) are written as labelled arrays.
 
     Returns:
-        (mcap path, csv path).
+        (mcap path, csv path or None).
     Raises:
         AmheError: a file exists and ``overwrite`` is False.
     """
     path = Path(path)
-    csv_path = path.with_name(path.name.split(".mcap")[0] + ".truth.csv")
-    if csv_path.exists() and not overwrite:
+    truth = result.traj.meta.get("truth")
+    csv_path = path.with_name(path.name.split(".mcap")[0] + ".truth.csv") if truth is not None else None
+    if csv_path is not None and csv_path.exists() and not overwrite:
         raise AmheError(f"{csv_path} exists: pass --force to overwrite it")
     est_t, est_v, est_s = result.estimates
     labels = [x for lab in result.labels for x in (lab, f"{lab}_std")]
     values = np.stack([est_v, est_s], axis=-1)  # (n, d, 2): value, std per label
     meta = {
-        TRUTH_RECORD: {k: json.dumps(to_plain(v)) for k, v in result.traj.meta["truth"].items()},
         "amhe_run": {"task": json.dumps(to_plain(task.to_dict())), "mode": settings.mode, "seed": str(settings.seed),
                      "realtime": str(settings.realtime), "planner": json.dumps(settings.planner.to_dict()),
                      "mhe": json.dumps(to_plain(settings.mhe.to_dict())), "kp": str(settings.kp), "kd": str(settings.kd),
-                     "metrics": json.dumps(result.metrics()), "control_hz": str(result.control_hz),
+                     "metrics": json.dumps(to_plain(result.metrics())), "control_hz": str(result.control_hz),
                      **{k: str(v) for k, v in (extra_meta or {}).items()}},
         "amhe_run_log": {f"{i:04d}": m for i, m in enumerate(result.messages)},
     }
-    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite,
-               extra=[("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)])
+    if truth is not None:
+        meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
+    extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]
+    extra += [(topic, t, vals, labs) for topic, (t, vals, labs) in result.extras.items()]
+    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite, extra=extra)
+    if csv_path is None:
+        return path, None
     ts = result.traj.meta["truth_series"]
     with csv_path.open("w", newline="") as fh:
         w = csv.writer(fh)

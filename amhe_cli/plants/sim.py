@@ -3,8 +3,15 @@
 :class:`SimPlant` steps a scene whose parameters are the *truth* (never shown to
 an estimator) under joint position targets held for a control period, and
 records what a real robot's logs would hold as a :class:`Trajectory`. ``probe
---target sim`` drives it with a scripted manoeuvre; ``run --target sim`` with
-the planner. The plant may use a finer timestep than the recorded grid.
+--target sim`` drives it with a scripted manoeuvre (:meth:`SimPlant.step`);
+``run --target sim`` with the planner, through the :class:`~amhe_cli.plants.base.Plant`
+interface (:meth:`SimPlant.measure`, :meth:`SimPlant.execute`). The plant may use a
+finer timestep than the recorded grid.
+
+Timing is the sim plant's own business: in lock-step (the default) it waits
+for the planner and runs ``cycle`` seconds of each plan; on the wall clock
+(``realtime``) it runs on, for as long as each planner cycle took, with the
+previous plan's later targets, as a real robot would.
 """
 
 from __future__ import annotations
@@ -15,10 +22,11 @@ import numpy as np
 from amhe_cli.io.plain import to_plain
 from amhe_cli.model.params import ParameterSpace, PARAMETERS
 from amhe_cli.model.scene import Scene, SceneConfig
+from amhe_cli.plants.base import Measurement, Plant
 from amhe_cli.io.trajectory import Trajectory
 
 
-class SimPlant:
+class SimPlant(Plant):
     """A MuJoCo plant with true parameters and a recorder.
 
     Args:
@@ -26,14 +34,24 @@ class SimPlant:
         truth: name -> true value for any of :data:`~amhe_cli.model.params.PARAMETERS`.
         record_dt: grid of the recorded trajectory [s] (a multiple of the plant step).
         control_period: how long each position target is held [s].
+        events: task events (:class:`~amhe_cli.control.tasks.Event`) that
+            :meth:`execute` fires on the plant when they are due.
+        realtime: run on for each planner cycle's compute time (else lock-step).
+        cycle: plant time per plan in lock-step [s].
 
     Attributes:
         scene, model, data: the plant's own scene, model (with the truth written) and state.
     """
 
     def __init__(self, config: SceneConfig | None = None, truth: dict | None = None,
-                 record_dt: float = 0.002, control_period: float = 0.01):
+                 record_dt: float = 0.002, control_period: float = 0.01, events=(), realtime: bool = False,
+                 cycle: float = 0.02):
         self.config = config or SceneConfig()
+        self.events = list(events)
+        self.realtime = realtime
+        self.cycle = cycle
+        self._prev_plan: np.ndarray | None = None
+        self._prev_used = 0
         self.scene = Scene(self.config)
         self.model = self.scene.model
         self.truth = dict(truth or {})
@@ -65,6 +83,40 @@ class SimPlant:
             self._log["mass"].append(self.truth_values["box_mass"])
             self._log["friction"].append(self.truth_values["box_friction"])
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
+
+    def measure(self) -> Measurement:
+        """The plant's exact state (no noise, no delay) at its current time."""
+        return Measurement(t=float(self.data.time), qpos=self.data.qpos.copy(), qvel=self.data.qvel.copy())
+
+    def execute(self, controls: np.ndarray, dt: float, compute_time: float) -> list:
+        """Run a plan: in lock-step its first ``cycle`` seconds; on the wall clock, the previous
+        plan's next rows for ``compute_time`` and then this plan's row for that moment.
+
+        Args:
+            controls: (H, 12) joint targets [rad], row k for ``k·dt`` after the last measurement;
+                each row is held for the plant's control period (= ``dt``).
+            dt: row spacing [s].
+            compute_time: the planner's wall time for this plan [s].
+        Returns:
+            [(t [s], event)] of the task events fired meanwhile.
+        """
+        controls = np.asarray(controls)
+        last = len(controls) - 1
+        if self.realtime:
+            lag = int(np.ceil(compute_time / dt))
+            prev = self._prev_plan
+            rows = [prev[min(self._prev_used + i, len(prev) - 1)] for i in range(lag)] if prev is not None \
+                else [controls[0]] * lag
+            rows += [controls[min(lag, last)]]
+            self._prev_used = lag + 1
+        else:
+            rows = controls[:max(1, int(round(self.cycle / dt)))]
+        self._prev_plan = controls
+        fired = []
+        for row in rows:
+            self.step(row)
+            fired += [(float(self.data.time), ev) for ev in self.fire_due(self.events)]
+        return fired
 
     def fire_due(self, events: list) -> list:
         """Apply the task events of ``events`` that are due now (time or box x) to the plant.
