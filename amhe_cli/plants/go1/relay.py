@@ -1,0 +1,315 @@
+"""The relay: one command to the Go1 every 2 ms, through the safety layer, with its watchdogs.
+
+The planner replans every ~0.1–0.3 s; the robot's motor loop wants a command
+every 2 ms (public Go1 low-level controllers run at 500 Hz). The relay fills
+the gap: a thread that, every ``period``, reads the newest robot state,
+interpolates the latest plan's joint targets at the current time, passes them
+through :class:`~amhe_cli.plants.go1.safety.SafetyLayer` and sends them.
+
+Phases (:attr:`Relay.phase`)::
+
+    wait ──state──► ramp ──2 s──► ready ──plan──► run ◄──► hold (stale plan: soft hold of the pose)
+      │                                            ◄──► stand (stale mocap: hold the stand, stop pushing)
+      └──state──► dry (--dry-run: damping packets only; the would-be targets are logged)
+    any ──trip / no state for state_timeout / damp()──► damp (mode 0x00, terminal)
+
+*wait* sends damping packets: there is no handshake, the robot answers the
+client's first packet. *ramp* moves from the measured pose to the stand over
+``ramp_time`` with a smoothstep. Every failure ends in *damp*: a tripped limit,
+a silent link, or :meth:`Relay.damp` from outside (an exception in the planner
+or the MHE, Ctrl-C); :meth:`Relay.stop` sends a burst of damping packets
+before it returns, so a lost datagram cannot leave a servo command active.
+
+Why a thread and not a process: the planner's rollouts run in MuJoCo's C
+thread pool without the GIL, and with the interpreter's switch interval cut to
+0.5 ms the relay thread gets the GIL within a fraction of its period; a process
+would need shared memory for plans and states for no measured gain
+(``benchmarks/relay_jitter.py`` prints the period's median and p99 with the
+planner busy on every core).
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from amhe_cli.model.scene import STAND_JOINTS
+from amhe_cli.plants.go1.protocol import MODE_DAMPING, MODE_SERVO, LowCmd, LowState
+from amhe_cli.plants.go1.safety import SafetyLayer, SafetyTrip
+
+#: Command period [s] (500 Hz, as public Go1 low-level controllers).
+PERIOD = 0.002
+#: The interpreter's switch interval while a relay runs [s]: the default 5 ms
+#: would let a busy planner thread hold the GIL for over two command periods.
+SWITCH_INTERVAL = 0.0005
+
+PHASES = ("wait", "ramp", "ready", "run", "hold", "stand", "dry", "damp")
+#: Real-time priority (SCHED_FIFO) asked for the relay thread where the OS allows it.
+RT_PRIORITY = 20
+
+
+def raise_thread_priority(priority: int = RT_PRIORITY) -> str:
+    """Give the calling thread real-time scheduling (SCHED_FIFO), else a lower nice value, where allowed.
+
+    A 2 ms loop must not wait behind the planner's rollout threads for a core.
+    Linux applies ``sched_setscheduler(0, …)`` to the calling thread only. A
+    user without the right (no root, no ``rtprio`` limit) keeps the default
+    scheduler; the returned text says which one the thread got.
+    """
+    import os
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+        return f"SCHED_FIFO {priority}"
+    except (AttributeError, OSError):
+        pass
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), -10)
+        return "nice -10"
+    except (AttributeError, OSError):
+        return "default scheduler (no right to raise the priority)"
+
+
+class Relay:
+    """The 2 ms command thread between the planner and the robot link.
+
+    Args:
+        link: a :class:`~amhe_cli.plants.go1.link.LowLevelLink` (or anything
+            with ``send(LowCmd)`` and ``recv() -> LowState | None``).
+        safety: the :class:`SafetyLayer` every command passes.
+        kp, kd: servo gains of the plan and the stand [N·m/rad], [N·m·s/rad].
+        dry_run: send damping packets only; keep what would have been sent in :attr:`would_send`.
+        planner_period: expected planner cycle [s]; with ``safety.plan_periods``
+            it sets the stale-plan watchdog (the larger of this and the
+            observed plan interval counts).
+        on_tick: called from the relay thread every period with
+            ``(t, state or None, q_sent (12,), mode)``: ``t`` is ``time.monotonic()``,
+            ``mode`` the motor mode sent. Keep it short.
+        period: command period [s].
+    Attributes:
+        phase: current phase (:data:`PHASES`).
+        reason: why the relay entered ``damp`` (None until then).
+        periods: measured command periods [s] (for jitter statistics).
+        scheduling: what :func:`raise_thread_priority` got for the relay thread.
+        messages: phase changes and watchdog events, time-stamped (:meth:`take_messages`).
+        streaming: set once the first valid state arrived; ready: set once the ramp is done.
+    """
+
+    def __init__(self, link, safety: SafetyLayer, kp: float, kd: float, dry_run: bool = False,
+                 planner_period: float = 0.25, on_tick: Callable | None = None, period: float = PERIOD):
+        self.link = link
+        self.safety = safety
+        self.kp, self.kd = float(kp), float(kd)
+        self.dry_run = dry_run
+        self.planner_period = planner_period
+        self.on_tick = on_tick
+        self.period = period
+        self.phase = "wait"
+        self.reason: str | None = None
+        self.periods: list[float] = []
+        self.messages: list[str] = []
+        self.scheduling = ""
+        self.would_send: list[tuple[float, np.ndarray]] = []
+        self.state: LowState | None = None
+        self.state_time = -np.inf
+        self.streaming = threading.Event()
+        self.ready = threading.Event()
+        self.failed = threading.Event()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._plan: tuple[np.ndarray, float, float] | None = None  # (controls (H, 12), dt, t0)
+        self._plan_received = -np.inf
+        self._plan_interval = planner_period
+        self._mocap_ok = True
+        self._q_prev: np.ndarray | None = None
+        self._ramp_from: np.ndarray | None = None
+        self._ramp_start = 0.0
+        self._hold_q: np.ndarray | None = None
+        self._t0 = 0.0
+        self._switch = sys.getswitchinterval()
+
+    # -- the caller's side ----------------------------------------------------
+    def start(self) -> None:
+        """Start the relay thread (phase ``wait``: damping packets until the robot answers)."""
+        self._t0 = time.monotonic()
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        self._thread = threading.Thread(target=self._loop, name="amhe-relay", daemon=True)
+        self._thread.start()
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Block until the ramp to the stand is done (``dry``: until the state streams); False on timeout or trip."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if self.failed.is_set():
+                return False
+            if self.ready.wait(0.01):
+                return True
+        return False
+
+    def set_plan(self, controls: np.ndarray, dt: float, t0: float) -> None:
+        """Hand over a plan: row k of ``controls`` (H, 12) [rad] is the target at ``t0 + k·dt`` (``time.monotonic()``)."""
+        now = time.monotonic()
+        with self._lock:
+            if np.isfinite(self._plan_received):
+                self._plan_interval = 0.8 * self._plan_interval + 0.2 * (now - self._plan_received)
+            self._plan = (np.array(controls, dtype=float), float(dt), float(t0))
+            self._plan_received = now
+
+    def set_mocap_ok(self, ok: bool) -> None:
+        """Whether the motion capture is fresh enough to push (False: hold the stand)."""
+        self._mocap_ok = bool(ok)
+
+    def take_messages(self) -> list[str]:
+        """Phase changes and watchdog events since the last call."""
+        with self._lock:
+            out, self.messages = self.messages, []
+        return out
+
+    def damp(self, reason: str) -> None:
+        """Enter damping now (an error elsewhere, Ctrl-C); the first reason given is kept."""
+        self._trip(reason)
+
+    def stop(self) -> None:
+        """End the relay: damping packets (a burst), then the thread stops. Safe to call twice."""
+        if self.phase != "damp":
+            self._set_phase("damp")
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=1.0)
+        cmd = LowCmd.damping(kd=self.safety.settings.damping_kd)
+        for _ in range(self.safety.settings.damping_burst):
+            try:
+                self.link.send(cmd)
+            except Exception:  # noqa: BLE001 - a dead link cannot be damped; nothing else to do
+                break
+            time.sleep(0.0005)
+        sys.setswitchinterval(self._switch)
+
+    # -- the relay thread -------------------------------------------------------
+    def _set_phase(self, phase: str, note: str = "") -> None:
+        """Change phase; entering or leaving a fallback (hold, stand, damp) is logged in :attr:`messages`."""
+        if phase != self.phase:
+            if phase in ("hold", "stand", "damp") or self.phase in ("hold", "stand"):
+                self.messages.append(f"relay {self.phase} -> {phase}" + (f": {note}" if note else ""))
+            self.phase = phase
+
+    def _trip(self, reason: str) -> None:
+        with self._lock:
+            if self.reason is None:
+                self.reason = reason
+            self._set_phase("damp", reason)
+        self.failed.set()
+
+    def _target(self, now: float, state: LowState | None) -> tuple[np.ndarray, float, float, int]:
+        """(q (12,), kp, kd, mode) wanted now, before the safety layer."""
+        s = self.safety.settings
+        stand = STAND_JOINTS
+        if self.phase == "ramp":
+            u = min(1.0, (now - self._ramp_start) / s.ramp_time)
+            w = u * u * (3 - 2 * u)
+            if u >= 1.0:
+                self._set_phase("ready")
+                self.ready.set()
+            return (1 - w) * self._ramp_from + w * stand, self.kp, self.kd, MODE_SERVO
+        with self._lock:
+            plan, received, interval = self._plan, self._plan_received, self._plan_interval
+        stale = now - received > s.plan_periods * max(self.planner_period, interval)
+        if self.phase in ("ready", "run", "hold", "stand"):
+            if not self._mocap_ok:
+                self._set_phase("stand", "motion capture stale: holding the stand")
+                return stand, self.kp, self.kd, MODE_SERVO
+            if plan is None:
+                if self.phase == "stand":
+                    self._set_phase("ready", "motion capture back")
+                return stand, self.kp, self.kd, MODE_SERVO
+            if stale:
+                if self.phase != "hold":
+                    self._set_phase("hold", f"no plan for {now - received:.2f} s: soft hold")
+                    self._hold_q = state.q.copy() if state is not None else self._q_prev
+                return self._hold_q, s.hold_kp, s.hold_kd, MODE_SERVO
+            if self.phase != "run":
+                self._set_phase("run")
+            controls, dt, t0 = plan
+            u = np.clip((now - t0) / dt, 0, len(controls) - 1)
+            k = min(int(u), len(controls) - 2) if len(controls) > 1 else 0
+            f = u - k if len(controls) > 1 else 0.0
+            q = controls[k] if len(controls) == 1 else (1 - f) * controls[k] + f * controls[k + 1]
+            return q, self.kp, self.kd, MODE_SERVO
+        return stand, 0.0, s.damping_kd, MODE_DAMPING
+
+    def _loop(self) -> None:
+        self.scheduling = raise_thread_priority()
+        s = self.safety.settings
+        damping = LowCmd.damping(kd=s.damping_kd)
+        next_t = time.monotonic()
+        last_t = None
+        while not self._stop.is_set():
+            now = time.monotonic()
+            if last_t is not None:
+                self.periods.append(now - last_t)
+            last_t = now
+            try:
+                state = self.link.recv()
+            except Exception as exc:  # noqa: BLE001 - a broken socket is a lost link
+                state = None
+                self._trip(f"robot link failed: {exc}")
+            if state is not None:
+                self.state, self.state_time = state, now
+                self.streaming.set()
+                if self.phase == "wait":
+                    if self.dry_run:
+                        self._set_phase("dry", "state streaming; dry run: damping packets only")
+                        self.ready.set()
+                    else:
+                        self._ramp_from, self._ramp_start = state.q.copy(), now
+                        self._q_prev = state.q.copy()
+                        self._set_phase("ramp", "state streaming: ramping to the stand")
+                if self.phase not in ("damp", "wait"):
+                    try:
+                        self.safety.check(state.rpy, state.tau_est, state.dq)
+                    except SafetyTrip as trip:
+                        self._trip(str(trip))
+            elif self.phase not in ("wait", "damp") and now - self.state_time > s.state_timeout:
+                self._trip(f"no valid robot state for {1e3 * (now - self.state_time):.0f} ms (link lost)")
+            if self.phase in ("wait", "damp"):
+                cmd, q_sent, mode = damping, None, MODE_DAMPING
+            else:
+                q, kp, kd, mode = self._target_dry(now) if self.phase == "dry" else self._target(now, state)
+                q, kp, kd = self.safety.filter(q, self._q_prev, kp, kd, self.period)
+                if self.dry_run:
+                    self.would_send.append((now, q.copy()))
+                    cmd, q_sent, mode = damping, None, MODE_DAMPING
+                else:
+                    self._q_prev = q
+                    cmd = LowCmd(mode=np.full(12, mode, dtype=np.uint8), q=q, dq=np.zeros(12), tau=np.zeros(12),
+                                 kp=kp if mode == MODE_SERVO else np.zeros(12), kd=kd)
+                    q_sent = q
+            try:
+                self.link.send(cmd)
+            except Exception as exc:  # noqa: BLE001
+                self._trip(f"robot link failed: {exc}")
+            if self.on_tick is not None:
+                try:
+                    self.on_tick(now, state, q_sent, mode)
+                except Exception as exc:  # noqa: BLE001 - a recorder failure must not stop the commands
+                    self._trip(f"recorder failed: {type(exc).__name__}: {exc}")
+            next_t += self.period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+            elif delay < -self.period:
+                next_t = time.monotonic()  # fell behind: do not burst to catch up
+
+    def _target_dry(self, now: float):
+        """In a dry run the would-be command follows the plan (or the stand) as if armed."""
+        with self._lock:
+            plan = self._plan
+        if plan is None:
+            return STAND_JOINTS, self.kp, self.kd, MODE_SERVO
+        controls, dt, t0 = plan
+        k = int(np.clip(round((now - t0) / dt), 0, len(controls) - 1))
+        return controls[k], self.kp, self.kd, MODE_SERVO
