@@ -1,0 +1,112 @@
+"""``amhe emulate go1``: a Go1 on 127.0.0.1 — the task's sim plant behind the Go1 low-level protocol.
+
+The plant is built here (``plants/`` may not import ``control``) and handed,
+with the task's events, to :class:`~amhe_cli.plants.go1.emulator.Go1Emulator`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+
+import click
+
+from amhe_cli.errors import AmheError
+
+#: Gains the plant's scene is built with. The emulator zeroes the plant's position
+#: servos and applies the motor PD of each LowCmd itself, so these only fill the
+#: scene config (``amhe run``'s defaults).
+_SCENE_KP, _SCENE_KD = 100.0, 4.0
+
+
+def parse_pose_noise(text: str) -> tuple[float, float]:
+    """``POS[,ROT]`` -> (position std [m], rotation std [rad]).
+
+    ROT is in radians, or in degrees with a ``deg`` suffix (``0.001,0.2deg``);
+    a missing ROT is 0.
+
+    Raises:
+        AmheError: not one or two non-negative finite numbers.
+    """
+    parts = [p.strip() for p in str(text).split(",")]
+    if not 1 <= len(parts) <= 2:
+        raise AmheError(f"--pose-noise {text!r}: expected POS[,ROT], e.g. 0.001,0.2deg (metres, radians or deg)")
+    try:
+        pos = float(parts[0])
+        rot_text = parts[1] if len(parts) == 2 else "0"
+        if rot_text.endswith("deg"):
+            rot = math.radians(float(rot_text[:-3]))
+        else:
+            rot = float(rot_text[:-3] if rot_text.endswith("rad") else rot_text)
+    except ValueError:
+        raise AmheError(f"--pose-noise {text!r}: expected POS[,ROT], e.g. 0.001,0.2deg "
+                        "(metres, radians or deg)") from None
+    if not (math.isfinite(pos) and math.isfinite(rot) and pos >= 0 and rot >= 0):
+        raise AmheError(f"--pose-noise {text!r}: noise must be finite and >= 0")
+    return pos, rot
+
+
+@click.group("emulate")
+def emulate_cmd():
+    """Emulate a robot on this machine, for testing the real-robot path without one."""
+
+
+@emulate_cmd.command("go1")
+@click.option("--task", default="t1", show_default=True, help="Task whose sim plant (box, truth, events) to run.")
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to listen on for LowCmd packets.")
+@click.option("--port", default=8007, show_default=True, type=click.IntRange(0, 65535),
+              help="UDP port to listen on (0: any free port; the first line says which).")
+@click.option("--pose-to", default="127.0.0.1:9870", show_default=True, metavar="HOST[:PORT]|off",
+              help="Where to stream the trunk and box poses (120 Hz), or 'off'.")
+@click.option("--pose-latency", default=0.003, show_default=True, type=click.FloatRange(0, 1.0),
+              help="Latency of the pose stream [s].")
+@click.option("--pose-noise", default="0.001,0.2deg", show_default=True, metavar="POS[,ROT]",
+              help="Pose noise std: position [m], rotation [rad, or deg with a 'deg' suffix].")
+@click.option("--base-body", default="Go1_body", show_default=True, help="Rigid-body name of the trunk's pose.")
+@click.option("--box-body", default="Box_body", show_default=True, help="Rigid-body name of the box's pose.")
+@click.option("--fault", "faults", multiple=True, metavar="KIND@T",
+              help="Inject a fault T s after the first valid command: link-loss, corrupt, mocap-freeze, "
+                   "mocap-drop. Repeatable.")
+@click.option("--record", type=click.Path(dir_okay=False), default=None,
+              help="CSV of every received packet (t, valid, mode_i, q_i, kp_i, kd_i).")
+@click.option("--force", is_flag=True, help="Overwrite an existing --record file.")
+@click.option("--duration", type=click.FloatRange(0, min_open=True), default=None,
+              help="Stop after this many seconds of emulator time (default: until SIGINT/SIGTERM).")
+@click.option("--seed", default=0, show_default=True, type=int, help="Seed of the pose noise.")
+@click.option("--quiet", "-q", is_flag=True, help="No summary line on stderr at the end.")
+def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_body, faults, record, force,
+            duration, seed, quiet):
+    """A Go1 EDU on the low-level UDP link (legged_sdk 3.8), played by the sim plant.
+
+    \b
+    Listens for 614-byte LowCmd packets on udp://HOST:PORT and answers the
+    sender of the last valid one with an 807-byte LowState every 2 ms; streams
+    the trunk and box poses to --pose-to. The first line on stdout says where
+    it listens and sends; a summary goes to stderr at the end.
+    """
+    from amhe_cli.control.closed_loop import make_plant
+    from amhe_cli.control.tasks import get_task
+    from amhe_cli.plants.go1.emulator import Go1Emulator, parse_fault
+    from amhe_cli.plants.go1.link import parse_address
+    from amhe_cli.plants.go1.mocap import POSE_STREAM_PORT
+
+    fault_list = [parse_fault(f) for f in faults]
+    noise = parse_pose_noise(pose_noise)
+    target = None if pose_to.strip().lower() == "off" else parse_address(pose_to, POSE_STREAM_PORT)
+    t = get_task(task)
+    plant = make_plant(t, _SCENE_KP, _SCENE_KD)
+    emu = Go1Emulator(plant, list(t.events), host=host, port=port, pose_to=target, faults=fault_list,
+                      record=record, base_body=base_body, box_body=box_body, pose_latency=pose_latency,
+                      pose_noise=noise, seed=seed, overwrite=force)
+    bh, bp = emu.address
+    poses = (f"poses to udp://{target[0]}:{target[1]} ({base_body}, {box_body})" if target is not None
+             else "poses off")
+    extra = f", faults {' '.join(f'{f.kind}@{f.t:g}' for f in fault_list)}" if fault_list else ""
+    click.echo(f"amhe emulate go1: listening on udp://{bh}:{bp}, {poses}, task {t.name}{extra}")
+    sys.stdout.flush()
+    st = emu.run(duration)
+    if not quiet:
+        click.echo(f"amhe emulate go1: {st.ticks * 0.002:.2f} s emulated, packets valid {st.valid} bad {st.bad} "
+                   f"ignored {st.ignored}, states sent {st.sent}, poses {st.poses}, overruns {st.overruns} "
+                   f"({emu.scheduling})",
+                   err=True)
