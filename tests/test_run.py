@@ -507,8 +507,11 @@ def test_run_unknown_task(capsys, tmp_path):
     assert not (tmp_path / "r.mcap").exists()
 
 
-def test_run_real_robot_not_supported(capsys, tmp_path):
-    one_line_error(amhe(capsys, "run", "--target", "go1", "--out", tmp_path / "r.mcap"), "go1")
+def test_run_go1_refuses_true_mode_before_touching_the_network(capsys, tmp_path):
+    # a real box's truth is unknown; the check comes before any socket is opened
+    one_line_error(amhe(capsys, "run", "--target", "go1", "--mode", "true", "--robot", "127.0.0.1:9",
+                        "--out", tmp_path / "r.mcap"), "true")
+    assert not (tmp_path / "r.mcap").exists()
 
 
 def test_run_bad_config(capsys, tmp_path):

@@ -224,3 +224,14 @@ def parse_range(text: str, flag: str) -> tuple[float, float]:
     if not a <= b:
         raise AmheError(f"{flag} {text!r}: expected MIN <= MAX")
     return a, b
+
+
+def parse_xy(text: str, flag: str) -> tuple[float, float]:
+    """``"x,y"`` -> (x, y) finite floats; AmheError naming ``flag`` otherwise."""
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise AmheError(f"{flag} {text!r}: expected two numbers X,Y") from None
+    if not (np.isfinite(x) and np.isfinite(y)):
+        raise AmheError(f"{flag} {text!r}: expected finite numbers")
+    return x, y

@@ -1,47 +1,88 @@
-"""``amhe run``: the closed loop, adaptive sampling MPC with the online MHE, on a plant."""
+"""``amhe run``: the closed loop, adaptive sampling MPC with the online MHE, on a plant (the sim or a Go1)."""
 
 from __future__ import annotations
 
 import json
+import signal
+import sys
 
 import click
 
-from amhe_cli.cli.common import fmt, load_belief, output_path, progress_bar
+from amhe_cli.cli.common import fmt, load_belief, output_path, parse_xy, progress_bar
 from amhe_cli.control.closed_loop import MODES
 from amhe_cli.errors import AmheError
 
+
 @click.command("run")
-@click.option("--task", "task_name", default="t1", show_default=True, help="Task t1..t5 (DESIGN.md §6).")
+@click.option("--task", "task_name", default="t1", show_default=True,
+              help="Task t1..t5 (see the README's task table).")
 @click.option("--target", type=click.Choice(["sim", "go1"]), default="sim", show_default=True,
-              help="Plant: the MuJoCo sim (a real Go1 is not supported by this version).")
+              help="Plant: the MuJoCo sim, or a Go1 over its low-level UDP link (a real robot or `amhe emulate go1`).")
 @click.option("--mode", type=click.Choice(MODES), default="adaptive", show_default=True,
               help="Planner's parameters: the truth, a fixed belief, or the belief re-estimated online by the MHE.")
-@click.option("--belief", default=None, type=click.Path(), help="Starting belief YAML (default: probe in sim first).")
+@click.option("--belief", default=None, type=click.Path(),
+              help="Starting belief YAML (default: sim: probe in sim first; go1: the nominal prior).")
 @click.option("--config", default=None, type=click.Path(),
-              help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task overrides.")
+              help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task, safety overrides.")
 @click.option("--seed", default=0, show_default=True, type=int)
 @click.option("--duration", default=None, type=float, help="Time limit [s] (default: the task's).")
-@click.option("--realtime", is_flag=True, help="Run the plant on the wall clock (default: lock-step).")
+@click.option("--realtime", is_flag=True, help="Run the sim plant on the wall clock (default: lock-step; go1 always is).")
+@click.option("--robot", default="192.168.123.10:8007", show_default=True, metavar="HOST:PORT",
+              help="go1: the robot's low-level UDP endpoint.")
+@click.option("--local-port", default=8080, show_default=True, type=click.IntRange(0, 65535),
+              help="go1: this machine's UDP port (the robot answers it).")
+@click.option("--mocap", default="udp:9870", show_default=True, metavar="SPEC",
+              help="go1: pose source: udp:PORT (the project's pose stream), optitrack:HOST, vicon:HOST, "
+                   "qualisys:HOST, vrpn:HOST, nokov:HOST.")
+@click.option("--base-body", default="Go1_body", show_default=True, help="go1: rigid-body name of the trunk.")
+@click.option("--box-body", default="Box_body", show_default=True, help="go1: rigid-body name of the box.")
+@click.option("--goal", default=None, metavar="X,Y",
+              help="go1: goal of the box in the mocap world [m] (default: the task's, relative to the box and "
+                   "the robot's heading at the start).")
+@click.option("--arm/--dry-run", default=False, show_default=True,
+              help="go1: --arm sends servo commands after the ramp to the stand; --dry-run (the default) sends "
+                   "damping packets only and records what it would have sent.")
 @click.option("--out", default=None, type=click.Path(), help="MCAP to record (default: run_<task>_<mode>_s<seed>.mcap).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--plot", type=click.Path(), default=None, help="PNG: box path vs goal, speed tracking, estimates vs truth.")
-@click.option("--json", "as_json", is_flag=True, help="Print only {success, e_g, J, t_exec, rmse} as JSON.")
-@click.option("--threads", default=None, type=int, help="Planner rollout threads (default: all CPUs).")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print only {success, e_g, J, t_exec, rmse[, failure]} as JSON.")
+@click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Planner rollout threads (default: all CPUs).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, out, force, plot, as_json, threads, quiet):
-    """Push a box with the adaptive sampling MPC (MPOPI + online MHE) in the sim plant."""
+def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
+            box_body, goal, arm, out, force, plot, as_json, threads, quiet):
+    """Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1.
+
+    \b
+    amhe run --task t4 --mode adaptive                       the sim plant, lock-step
+    amhe run --task t1 --target go1 --robot 127.0.0.1:8007 --mocap udp:9870 --arm
+                                                             a Go1 (or `amhe emulate go1`)
+    A Go1 run waits for the robot's state stream and both poses, ramps to the
+    stand over 2 s, and only then plans; any failure (safety trip, lost link,
+    stale state, Ctrl-C, an exception) ends in damping, the recording is kept
+    and the exit status is non-zero.
+    """
+    from amhe_cli.cli.plot import check_plot_path, plot_run
     from amhe_cli.control.closed_loop import run_task, save_run
     from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
-    from amhe_cli.cli.plot import check_plot_path, plot_run
 
-    if target != "sim":
-        raise AmheError("--target go1: driving a real Go1 is not supported by this version; use --target sim")
-    task, settings = run_settings(task_name, mode, load_config(config), seed=seed, realtime=realtime,
+    cfg = load_config(config)
+    task, settings = run_settings(task_name, mode, cfg, seed=seed, realtime=realtime or target == "go1",
                                   threads=threads, duration=duration)
     out_path = output_path(out or f"run_{task.name}_{mode}_s{seed}.mcap", f"run_{task.name}", ".mcap", force)
     plot_path = check_plot_path(plot)
+    goal_xy = parse_xy(goal, "--goal") if goal is not None else None
+    if target == "sim" and goal is not None:
+        raise AmheError("--goal is for --target go1; the sim tasks have their own goals (use --config task: goal)")
     start = load_belief(belief)
-    if start is None and mode != "true":
+    plant = None
+    if target == "go1":
+        if mode == "true":
+            raise AmheError("--mode true needs the box's true parameters, which a real robot does not have: "
+                            "use --mode adaptive or baseline")
+        plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
+                                        goal_xy, arm, quiet or as_json)
+    elif start is None and mode != "true":
         if not (quiet or as_json):
             click.echo("no --belief: probing in the sim with the task's starting box first", err=True)
         bar = progress_bar(40, "probe+identify", quiet or as_json)
@@ -54,19 +95,70 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, o
                                                       if k in ("box_mass", "box_friction")), err=True)
     bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
     try:
-        result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n))
+        result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant)
     finally:
         bar.close()
-    save_run(result, out_path, task, settings, overwrite=force)
+    save_run(result, out_path, task, settings, overwrite=force,
+             extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})})
     if plot_path is not None:
         plot_run(plot_path, result, task)
     for m in result.warnings:
         click.echo(f"amhe: warning: {m}", err=True)
     if as_json:
         click.echo(json.dumps(result.metrics()))
-        return
-    click.echo(f"{task.name} {mode} seed {seed}: {'success' if result.success else 'failure'}"
-               f"{' (the robot fell)' if result.fell else ''}")
-    click.echo(f"  e_g {result.e_g:.3f} m   J {result.J:.3f}   t_exec {result.t_exec:.1f} s   "
-               f"speed RMSE {result.rmse:.3f} m/s   control {result.control_hz:.1f} Hz")
-    click.echo(f"recorded {out_path}" + (f", plot {plot_path}" if plot_path else ""))
+    else:
+        click.echo(f"{task.name} {mode} seed {seed}: {'success' if result.success else 'failure'}"
+                   f"{' (the robot fell)' if result.fell else ''}")
+        click.echo(f"  e_g {result.e_g:.3f} m   J {result.J:.3f}   t_exec {result.t_exec:.1f} s   "
+                   f"speed RMSE {result.rmse:.3f} m/s   control {result.control_hz:.1f} Hz")
+        click.echo(f"recorded {out_path}" + (f", plot {plot_path}" if plot_path else ""))
+    if result.failure is not None:
+        if result.failure.startswith("interrupted"):
+            click.echo(f"amhe: {result.failure}; recorded {out_path}", err=True)
+            sys.exit(130)
+        raise AmheError(f"run stopped: {result.failure} (recorded {out_path})")
+
+
+def _sigterm_as_interrupt(signum, frame):
+    """SIGTERM (a process manager, ``kill``) ends a robot run like Ctrl-C: damping, the recording kept."""
+    raise KeyboardInterrupt
+
+
+def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body, goal_xy, arm, quiet):
+    """Open the Go1 plant, wait for state and poses, ramp to the stand; place the task where robot and box are.
+
+    Returns:
+        (plant, placed task, starting belief).
+    """
+    from amhe_cli.control.closed_loop import RUN_PARAMS, task_scene_config
+    from amhe_cli.estimation.belief import Belief
+    from amhe_cli.io.quat import quat_to_yaw
+    from amhe_cli.model.params import ParameterSpace
+    from amhe_cli.model.scene import Scene
+    from amhe_cli.plants.go1.link import parse_address
+    from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
+    from amhe_cli.plants.go1.safety import SafetySettings
+
+    scene = Scene(task_scene_config(task, 0.002, settings.kp, settings.kd))
+    if start is None:
+        start = Belief.nominal(ParameterSpace(scene, free=RUN_PARAMS), {"source": "nominal prior (no --belief)"})
+        if not quiet:
+            click.echo("no --belief: starting from the nominal prior (" + ", ".join(
+                f"{k} {fmt(v)}" for k, v in start.values.items() if k in ("box_mass", "box_friction")) + ")", err=True)
+    go1 = Go1Settings(robot=parse_address(robot, 8007), local_port=local_port, mocap=mocap, base_body=base_body,
+                      box_body=box_body, arm=arm, kp=settings.kp, kd=settings.kd,
+                      safety=SafetySettings.from_dict(cfg.get("safety")))
+    signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
+    plant = Go1Plant(scene, go1)
+    if not quiet:
+        click.echo(f"go1: waiting for {robot} and poses from {mocap} ({base_body}, {box_body}); "
+                   f"{'ARMED' if arm else 'dry run: damping packets only'}", err=True)
+    m = plant.start()
+    sc = scene
+    placed = task.placed(m.qpos[sc.base_qpos[:2]], float(quat_to_yaw(m.qpos[sc.base_qpos[3:]])),
+                         m.qpos[sc.box_qpos[:2]], goal=goal_xy)
+    if not quiet:
+        click.echo(f"go1: standing; box at ({placed.box_start[0]:.2f}, {placed.box_start[1]:.2f}) m, goal "
+                   f"({placed.goal[0]:.2f}, {placed.goal[1]:.2f}) m, {placed.goal_error(placed.box_start):.2f} m away",
+                   err=True)
+    return plant, placed, start

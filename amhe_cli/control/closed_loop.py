@@ -14,6 +14,12 @@ Modes differ only in the planner's parameters: ``true`` gets the plant's truth
 (and every change of it), ``baseline`` a fixed belief, ``adaptive`` the same
 belief and then the MHE's estimates.
 
+On the wall clock a plan arrives ``compute time`` after the state it was
+computed from, while the last plan runs on: the loop plans from the planner
+model's prediction of the state at the expected arrival (an average of the
+recent compute times), after those rows, and the plan starts there (its
+``lead``).
+
 Timing (the sim plant's; a real robot never waits): by default the plant waits for the planner (lock-step; reproducible for a
 seed — the MHE's update for the window ending at ``t`` is applied at
 ``t + every`` in plant time, the thread computing it meanwhile). With
@@ -57,6 +63,9 @@ RUN_PARAMS = ("box_mass", "box_inertia", "box_friction")
 #: Pushing a box straight hardly excites its inertia, and three more free coordinates made
 #: every update noisier in mass and friction.
 MHE_PARAMS = ("box_mass", "box_friction")
+#: Longest latency compensation on the wall clock [s]: a planner slower than this is
+#: better off replanning from the measured state than from a long open-loop prediction.
+MAX_LEAD = 0.15
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)
 
@@ -337,6 +346,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         next_update = s.mhe.window
         pending = False
         phase = None
+        latency = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
+        prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         m = plant.measure()
         while m.t < task.duration - 1e-9:
             t, q, v = m.t, m.qpos, m.qvel
@@ -350,7 +361,18 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     messages.append(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
             state = pscene.full_state(q[None], v[None])[0]
-            plan = planner.plan(state, t, cmd)
+            lead = 0.0
+            if plant.realtime and latency is not None:
+                # latency compensation: plan from where the robot will be when the plan arrives,
+                # after the last plan's rows that run meanwhile
+                n = int(np.ceil(latency / pdt))
+                lead = n * pdt
+                idx = np.round((t + pdt * np.arange(n) - prev_start) / pdt).astype(int)
+                state = planner.predict(state, prev_rows[np.clip(idx, 0, len(prev_rows) - 1)])
+            plan = planner.plan(state, t + lead, cmd)
+            if len(plan_times):  # the first plan warms caches up: not a latency to expect
+                latency = min(plan.compute_time if latency is None else 0.7 * latency + 0.3 * plan.compute_time,
+                              MAX_LEAD)
             plan_times.append(plan.compute_time)
             # executed-trajectory metrics at the cycle start
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
@@ -360,13 +382,15 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
                                                box_quat=q[sc.box_qpos[3:]])))
-            for t_ev, ev in plant.execute(plan.controls, pdt, plan.compute_time):
+            fired = plant.execute(plan.controls, pdt, plan.compute_time, lead)
+            prev_rows, prev_start = plan.controls, t + lead
+            for t_ev, ev in fired:
                 messages.append(f"t={t_ev:.2f} s: plant event {ev.param} -> {ev.value}")
                 if s.mode == "true":
                     swap(space.vector(plant.truth_values), np.zeros(space.dim), t_ev)
             m = plant.measure()
             now = m.t
-            if m.qpos[sc.base_qpos[2]] < task.fall_height:
+            if plant.armed and m.qpos[sc.base_qpos[2]] < task.fall_height:
                 fell = True
                 warn(f"t={now:.2f} s: the robot fell (base at {m.qpos[sc.base_qpos[2]]:.3f} m)")
                 break

@@ -26,12 +26,12 @@ from amhe_cli.errors import AmheError, check_names
 from amhe_cli.estimation.identify import IdentifySettings, identify
 from amhe_cli.estimation.mhe import MHESettings
 from amhe_cli.model.params import ParameterSpace
-from amhe_cli.control.planner import PlannerSettings
+from amhe_cli.control.planner import REALTIME_PLANNER, PlannerSettings
 from amhe_cli.control.probing import simulate_probe
 from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task"}
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task", "safety"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -64,6 +64,9 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
                  threads: int | None = None, duration: float | None = None) -> tuple[Task, RunSettings]:
     """The task and settings of one run from a config dict (see :func:`load_config`).
 
+    On the wall clock (``realtime``) the planner starts from
+    :data:`~amhe_cli.control.planner.REALTIME_PLANNER`, under the config's ``planner:`` keys.
+
     Raises:
         AmheError: unknown task, mode, setting or weight name.
     """
@@ -78,7 +81,8 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     task = get_task(task_name, weights=CostWeights.from_dict(config.get("weights") or {}), **overrides)
     mhe = config.get("mhe") or {}
     check_names(mhe, MHESettings.__dataclass_fields__, "mhe setting")
-    settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(config.get("planner") or {}),
+    planner = {**(REALTIME_PLANNER if realtime else {}), **(config.get("planner") or {})}
+    settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(planner),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
                            **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config},
                            **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))

@@ -151,6 +151,36 @@ class Task:
         d["events"] = [asdict(e) for e in self.events]
         return d
 
+    def placed(self, robot_xy, robot_yaw: float, box_xy, goal=None) -> "Task":
+        """The task moved into a world where the robot and the box already stand (a real lab).
+
+        The task's own frame has the robot at the origin facing +x; here the
+        box start maps onto the measured box ``box_xy`` and the frame turns by
+        the robot's yaw, so the goal (and T2's circle) keep their place
+        *relative to the box and the robot's heading*. ``goal`` (x, y) [m], if
+        given, is the goal in the world instead. Plant events (a simulated
+        mass switch or floor change) are dropped: the real world has its own.
+
+        Args:
+            robot_xy: (2,) measured trunk position [m] (only its heading is used).
+            robot_yaw: measured trunk yaw [rad].
+            box_xy: (2,) measured box centre [m].
+            goal: optional (2,) goal in the world [m].
+        """
+        c, s_ = np.cos(robot_yaw), np.sin(robot_yaw)
+        rot = np.array([[c, -s_], [s_, c]])
+        start = np.asarray(self.box_start, dtype=float)
+        box = np.asarray(box_xy, dtype=float)[:2]
+
+        def move(p):
+            return tuple(float(x) for x in box + rot @ (np.asarray(p, dtype=float) - start))
+        circle = None
+        if self.circle is not None:
+            cx, cy, r, arc = self.circle
+            circle = (*move((cx, cy)), r, arc)
+        new_goal = tuple(float(x) for x in goal) if goal is not None else move(self.goal)
+        return replace(self, box_start=tuple(float(x) for x in box), goal=new_goal, circle=circle, events=())
+
     # -- targets -------------------------------------------------------------
     def box_target(self, box_xy: np.ndarray) -> np.ndarray:
         """(2,) where the box should head now: the goal, or (T2) a point 0.3 m ahead on the circle."""

@@ -83,6 +83,19 @@ class Belief:
         return path
 
     @classmethod
+    def nominal(cls, space, provenance: dict | None = None) -> "Belief":
+        """The prior of ``space`` as a belief: its nominal values and default prior stds, nothing identified.
+
+        What a run on a real robot starts from when no ``--belief`` is given
+        (a sim probe knows nothing about a real box).
+        """
+        values = to_plain(space.values(space.mean0))
+        from amhe_cli.model.params import PARAMETERS as P
+        std = {n: (P[n].prior_std[0] if P[n].size == 1 else list(P[n].prior_std)) for n in space.free}
+        return cls(values=values, std=to_plain(std), free=[], scene=space.scene.config.to_dict(),
+                   provenance=dict(provenance or {"source": "nominal prior"}))
+
+    @classmethod
     def from_identify(cls, result, space, scene_config, provenance: dict) -> "Belief":
         """The belief an identification leaves: estimate, std, correlation and cost of ``result``.
 

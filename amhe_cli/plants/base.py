@@ -59,27 +59,32 @@ class Plant(ABC):
             always); False for a lock-step simulation that waits for the planner.
         truth_values: the true parameters now (name -> value), or None where
             nobody knows them (a real robot).
+        armed: the plan's targets reach the motors. False for a robot's dry
+            run (damping only: it lies down, so a "fall" ends nothing).
     """
 
     scene: Scene
     record_dt: float
     realtime: bool
     truth_values: dict | None
+    armed: bool = True
 
     @abstractmethod
     def measure(self) -> Measurement:
         """The state now. Raises :class:`PlantFailure` when the plant has failed."""
 
     @abstractmethod
-    def execute(self, controls: np.ndarray, dt: float, compute_time: float) -> list:
+    def execute(self, controls: np.ndarray, dt: float, compute_time: float, lead: float = 0.0) -> list:
         """Carry out a plan measured at the last :meth:`measure`.
 
         Args:
             controls: (H, 12) joint position targets [rad]; row k is meant for
-                ``k·dt`` after the measurement.
+                ``lead + k·dt`` after the measurement.
             dt: row spacing [s].
             compute_time: how long the planner took [s] (a wall-clock plant
                 has already run on for that long).
+            lead: how far after the measurement the plan starts [s] (the
+                closed loop's latency compensation on the wall clock; 0 in lock-step).
         Returns:
             the task events that fired meanwhile (the sim's; a real plant has none).
         """

@@ -88,15 +88,16 @@ class SimPlant(Plant):
         """The plant's exact state (no noise, no delay) at its current time."""
         return Measurement(t=float(self.data.time), qpos=self.data.qpos.copy(), qvel=self.data.qvel.copy())
 
-    def execute(self, controls: np.ndarray, dt: float, compute_time: float) -> list:
+    def execute(self, controls: np.ndarray, dt: float, compute_time: float, lead: float = 0.0) -> list:
         """Run a plan: in lock-step its first ``cycle`` seconds; on the wall clock, the previous
         plan's next rows for ``compute_time`` and then this plan's row for that moment.
 
         Args:
-            controls: (H, 12) joint targets [rad], row k for ``k·dt`` after the last measurement;
-                each row is held for the plant's control period (= ``dt``).
+            controls: (H, 12) joint targets [rad], row k for ``lead + k·dt`` after the last
+                measurement; each row is held for the plant's control period (= ``dt``).
             dt: row spacing [s].
             compute_time: the planner's wall time for this plan [s].
+            lead: start of the plan after the measurement [s] (wall clock only).
         Returns:
             [(t [s], event)] of the task events fired meanwhile.
         """
@@ -104,11 +105,13 @@ class SimPlant(Plant):
         last = len(controls) - 1
         if self.realtime:
             lag = int(np.ceil(compute_time / dt))
+            skip = int(round(lead / dt))  # rows of this plan before its row 0 is due
             prev = self._prev_plan
             rows = [prev[min(self._prev_used + i, len(prev) - 1)] for i in range(lag)] if prev is not None \
                 else [controls[0]] * lag
-            rows += [controls[min(lag, last)]]
-            self._prev_used = lag + 1
+            first = max(lag - skip, 0)
+            rows += [controls[min(first, last)]]
+            self._prev_used = first + 1
         else:
             rows = controls[:max(1, int(round(self.cycle / dt)))]
         self._prev_plan = controls

@@ -90,8 +90,9 @@ _NJ = 12
 class Fault:
     """A fault injected ``t`` seconds of emulator time after the first valid command.
 
-    ``kind``: ``link-loss`` (no more state, commands ignored: the last applied
-    command keeps acting), ``corrupt`` (every LowState from then on has a bad
+    ``kind``: ``link-loss`` (no more state: the client no longer hears the
+    robot, the robot still hears, records and applies the client, so the
+    client's reaction — damping — shows in the record), ``corrupt`` (every LowState from then on has a bad
     CRC), ``mocap-freeze`` (the same poses with the same stamp are sent from
     then on), ``mocap-drop`` (poses stop).
     """
@@ -126,7 +127,7 @@ class EmulatorStats:
     Attributes:
         valid: LowCmd packets accepted (right length and CRC, finite values).
         bad: packets rejected (length, CRC, non-finite values); never applied.
-        ignored: packets dropped by a ``link-loss`` fault.
+        ignored: packets that arrived while a ``link-loss`` fault kept the state from going out.
         overruns: ticks whose work ended after their wall-clock deadline.
         sent: LowState packets sent.
         poses: pose frames handed to the pose stream.
@@ -390,8 +391,7 @@ class Go1Emulator:
     def _packet(self, buf: bytes, addr) -> None:
         t = self.time
         if "link-loss" in self._active:
-            self._stats.ignored += 1
-            return
+            self._stats.ignored += 1  # still heard, recorded and applied: only the state direction is lost
         try:
             cmd = LowCmd.decode(buf)
             fields = [np.asarray(getattr(cmd, f), dtype=float)[:_NJ] for f in ("q", "dq", "tau", "kp", "kd")]

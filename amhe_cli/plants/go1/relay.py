@@ -93,6 +93,7 @@ class Relay:
         phase: current phase (:data:`PHASES`).
         reason: why the relay entered ``damp`` (None until then).
         periods: measured command periods [s] (for jitter statistics).
+        busy: time each period's work took [s] (receive, check, interpolate, send, record).
         scheduling: what :func:`raise_thread_priority` got for the relay thread.
         messages: phase changes and watchdog events, time-stamped (:meth:`take_messages`).
         streaming: set once the first valid state arrived; ready: set once the ramp is done.
@@ -110,6 +111,7 @@ class Relay:
         self.phase = "wait"
         self.reason: str | None = None
         self.periods: list[float] = []
+        self.busy: list[float] = []
         self.messages: list[str] = []
         self.scheduling = ""
         self.would_send: list[tuple[float, np.ndarray]] = []
@@ -297,6 +299,7 @@ class Relay:
                     self.on_tick(now, state, q_sent, mode)
                 except Exception as exc:  # noqa: BLE001 - a recorder failure must not stop the commands
                     self._trip(f"recorder failed: {type(exc).__name__}: {exc}")
+            self.busy.append(time.monotonic() - now)
             next_t += self.period
             delay = next_t - time.monotonic()
             if delay > 0:

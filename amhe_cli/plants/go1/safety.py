@@ -157,9 +157,9 @@ class SafetyLayer:
             q = np.clip(q, q_prev - step, q_prev + step)
         clamped = np.clip(q, SDK_JOINT_LOWER, SDK_JOINT_UPPER)
         self.clamped += int(bad.sum() + (clamped != q).sum())
-        kp = np.clip(np.broadcast_to(np.nan_to_num(np.asarray(kp, dtype=float)), (12,)), 0.0, s.kp_max)
-        kd = np.clip(np.broadcast_to(np.nan_to_num(np.asarray(kd, dtype=float)), (12,)), 0.0, s.kd_max)
-        return clamped, kp.copy(), kd.copy()
+        kp = np.clip(np.nan_to_num(np.broadcast_to(np.asarray(kp, dtype=float), (12,))), 0.0, s.kp_max)
+        kd = np.clip(np.nan_to_num(np.broadcast_to(np.asarray(kd, dtype=float), (12,))), 0.0, s.kd_max)
+        return clamped, kp, kd
 
     def check(self, rpy: np.ndarray, tau_est: np.ndarray, dq: np.ndarray) -> None:
         """Check one robot state; raises :class:`SafetyTrip` with a one-line reason when a limit trips.

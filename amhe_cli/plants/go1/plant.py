@@ -1,0 +1,264 @@
+"""The real Go1 as a :class:`~amhe_cli.plants.base.Plant`: link, relay, safety, state estimation, motion capture.
+
+:class:`Go1Plant` puts the parts together behind the plant interface the
+closed loop already drives in simulation:
+
+* :class:`~amhe_cli.plants.go1.link.LowLevelLink` — LowCmd/LowState over UDP;
+* :class:`~amhe_cli.plants.go1.relay.Relay` — a command every 2 ms through the
+  :class:`~amhe_cli.plants.go1.safety.SafetyLayer`, with its watchdogs;
+* a :class:`~amhe_cli.plants.go1.mocap.PoseSource` — trunk and box poses;
+* :class:`~amhe_cli.plants.go1.state.StateEstimator` — the planner's full state.
+
+Its clock is the wall clock (``time.monotonic()``), its time 0 the end of the
+ramp to the stand. Every relay tick (2 ms) feeds the estimator and records a
+sample; :meth:`Go1Plant.trajectory` resamples the recording onto a uniform
+``record_dt`` grid, so ``identify`` and ``mhe-replay`` read a Go1 run like any
+other log. Nobody knows a real box's parameters: ``truth_values`` is None.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from amhe_cli.errors import AmheError
+from amhe_cli.io.quat import quat_normalize
+from amhe_cli.io.trajectory import Trajectory
+from amhe_cli.model.scene import Scene
+from amhe_cli.plants.base import Measurement, Plant, PlantFailure
+from amhe_cli.plants.go1.link import LowLevelLink
+from amhe_cli.plants.go1.protocol import LOCAL_PORT, MODE_DAMPING, ROBOT_ADDRESS
+from amhe_cli.plants.go1.relay import Relay
+from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
+from amhe_cli.plants.go1.state import StateEstimator
+
+#: Labels of the raw IMU stream recorded beside the trajectory (``/go1/imu``).
+IMU_LABELS = ("qw", "qx", "qy", "qz", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+FOOT_LABELS = ("FR", "FL", "RR", "RL")
+
+
+@dataclass
+class Go1Settings:
+    """How to reach and drive the robot.
+
+    Attributes:
+        robot: (host, port) of the robot's low-level UDP endpoint.
+        local_port: this machine's UDP port (the robot answers the sender).
+        mocap: pose source spec (``udp:9870``, ``optitrack:HOST``, …; see
+            :func:`~amhe_cli.plants.go1.mocap.open_pose_source`).
+        base_body, box_body: rigid-body names of the trunk and the box.
+        arm: send servo commands; False is a dry run (damping packets only,
+            the would-be targets recorded).
+        kp, kd: servo gains [N·m/rad], [N·m·s/rad].
+        safety: :class:`~amhe_cli.plants.go1.safety.SafetySettings`.
+        start_timeout: how long to wait for the state stream and the poses [s].
+        planner_period: expected planner cycle [s] (stale-plan watchdog).
+    """
+
+    robot: tuple = ROBOT_ADDRESS
+    local_port: int = LOCAL_PORT
+    mocap: str = "udp:9870"
+    base_body: str = "Go1_body"
+    box_body: str = "Box_body"
+    arm: bool = False
+    kp: float = 100.0
+    kd: float = 4.0
+    safety: SafetySettings = field(default_factory=SafetySettings)
+    start_timeout: float = 3.0
+    planner_period: float = 0.3
+
+
+class Go1Plant(Plant):
+    """A Go1 driven over its low-level link (or the emulator on 127.0.0.1); see the module docstring.
+
+    Args:
+        scene: the task's scene (its ``qpos``/``qvel`` layout is what :meth:`measure` fills).
+        settings: :class:`Go1Settings`.
+        link: an open link (default: a :class:`LowLevelLink` to ``settings.robot``).
+        poses: a started pose source (default: :func:`open_pose_source` of ``settings.mocap``).
+    Raises:
+        AmheError: the link or the pose source cannot be opened.
+    """
+
+    realtime = True
+    truth_values = None
+
+    def __init__(self, scene: Scene, settings: Go1Settings, link=None, poses=None):
+        from amhe_cli.plants.go1.mocap import open_pose_source
+        self.scene = scene
+        self.settings = s = settings
+        self.record_dt = 0.002
+        self.armed = s.arm
+        self.link = link if link is not None else LowLevelLink(s.robot, s.local_port)
+        try:
+            self.poses = poses if poses is not None else open_pose_source(s.mocap, (s.base_body, s.box_body))
+        except BaseException:
+            self.link.close()
+            raise
+        self.estimator = StateEstimator(scene)
+        self.safety = SafetyLayer(s.safety)
+        self.relay = Relay(self.link, self.safety, s.kp, s.kd, dry_run=not s.arm, planner_period=s.planner_period,
+                           on_tick=self._on_tick)
+        self._lock = threading.Lock()
+        self._t0: float | None = None
+        self._measured_at = 0.0
+        self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "imu", "feet")}
+        self._ctrl = scene.model.qpos0[scene.joint_qpos].copy()
+        self._messages: list[str] = []
+        self._mocap_was_ok = True
+        self._closed = False
+
+    # -- start ------------------------------------------------------------------
+    def start(self) -> Measurement:
+        """Wait for the state stream and both poses, ramp to the stand; time 0 is then.
+
+        Returns:
+            the first :class:`Measurement` (t = 0).
+        Raises:
+            PlantFailure: no valid robot state or no pose in ``start_timeout``,
+                or a trip during the ramp (the robot is damped, the link closed).
+        """
+        s = self.settings
+        self.relay.start()
+        try:
+            if not self.relay.streaming.wait(s.start_timeout):
+                raise PlantFailure(
+                    f"no valid LowState from {s.robot[0]}:{s.robot[1]} within {s.start_timeout:g} s "
+                    f"({self.link.bad_packets} bad packets): is the robot on, in low-level mode "
+                    "(L2+A, L2+A, L2+B, L1+L2+START), and this machine on its network?")
+            try:
+                self.poses.wait((s.base_body, s.box_body), timeout=s.start_timeout)
+            except AmheError as exc:
+                raise PlantFailure(str(exc)) from None
+            if not self.relay.wait_ready(s.safety.ramp_time + s.start_timeout):
+                raise PlantFailure(self.relay.reason or "the ramp to the stand did not finish")
+        except BaseException as exc:
+            self.close(str(exc) if isinstance(exc, AmheError) else f"{type(exc).__name__}")
+            raise
+        with self._lock:
+            self._t0 = time.monotonic()
+        return self.measure()
+
+    # -- the relay thread's side ------------------------------------------------
+    def _on_tick(self, now: float, state, q_sent, mode) -> None:
+        s = self.settings
+        base, box = self.poses.latest(s.base_body), self.poses.latest(s.box_body)
+        fresh = self.poses.age(s.base_body, now) <= s.safety.mocap_timeout and \
+            self.poses.age(s.box_body, now) <= s.safety.mocap_timeout
+        self.relay.set_mocap_ok(fresh)
+        with self._lock:
+            if state is not None:
+                self.estimator.update_state(now, state)
+            self.estimator.update_poses(base, box)
+            if fresh != self._mocap_was_ok:
+                self._messages.append("motion capture stale: holding the stand" if not fresh
+                                      else "motion capture fresh again")
+                self._mocap_was_ok = fresh
+            if self._t0 is None or now < self._t0:
+                return
+            if q_sent is not None and mode != MODE_DAMPING:
+                self._ctrl = np.asarray(q_sent, dtype=float)
+            elif self.relay.would_send:
+                self._ctrl = self.relay.would_send[-1][1]
+            qpos, qvel = self.estimator.estimate(now)
+            self._rec["t"].append(now - self._t0)
+            self._rec["qpos"].append(qpos)
+            self._rec["qvel"].append(qvel)
+            self._rec["ctrl"].append(self._ctrl)
+            if state is not None:
+                self._rec["imu"].append((now - self._t0, *state.quaternion, *state.gyroscope, *state.accelerometer))
+                self._rec["feet"].append((now - self._t0, *state.foot_force))
+
+    # -- the plant interface ----------------------------------------------------
+    def measure(self) -> Measurement:
+        """The estimated state now; raises :class:`PlantFailure` once the relay has damped the robot."""
+        if self.relay.failed.is_set():
+            raise PlantFailure(self.relay.reason or "the relay stopped")
+        s = self.settings
+        now = time.monotonic()
+        with self._lock:
+            qpos, qvel = self.estimator.estimate(now)
+            t0 = self._t0 if self._t0 is not None else now
+        ages = {"joints": now - self.relay.state_time, "base": self.poses.age(s.base_body, now),
+                "box": self.poses.age(s.box_body, now)}
+        self._measured_at = now
+        return Measurement(t=now - t0, qpos=qpos, qvel=qvel, ages=ages,
+                           box_fresh=max(ages["base"], ages["box"]) <= s.safety.mocap_timeout)
+
+    def execute(self, controls: np.ndarray, dt: float, compute_time: float, lead: float = 0.0) -> list:
+        """Hand the plan to the relay, row 0 due ``lead`` after the last :meth:`measure`; returns at once (no events)."""
+        if self.relay.failed.is_set():
+            raise PlantFailure(self.relay.reason or "the relay stopped")
+        self.relay.set_plan(controls, dt, self._measured_at + lead)
+        return []
+
+    def take_messages(self) -> list[str]:
+        """Relay phase changes, pose warnings and mocap freshness changes since the last call."""
+        with self._lock:
+            out, self._messages = self._messages, []
+        out += self.relay.take_messages() + self.poses.take_warnings()
+        return out
+
+    def trajectory(self, last: float | None = None) -> Trajectory:
+        """The recording since time 0 (or its ``last`` seconds), resampled onto a uniform 2 ms grid.
+
+        Joint targets are held (zero-order) between ticks; positions and
+        velocities are interpolated linearly, quaternions renormalised.
+        """
+        with self._lock:
+            t = np.array(self._rec["t"])
+            k = 0 if last is None else int(np.searchsorted(t, t[-1] - last)) if len(t) else 0
+            t = t[k:]
+            qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
+            qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
+            ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
+        sc, dt = self.scene, self.record_dt
+        if len(t) == 0:
+            grid = np.zeros(0)
+        else:
+            grid = t[0] + dt * np.arange(int(np.floor((t[-1] - t[0]) / dt + 1e-9)) + 1)
+
+        def interp(a: np.ndarray) -> np.ndarray:
+            return np.stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])], axis=1) if len(t) \
+                else np.zeros((0, a.shape[1]))
+        qp, qv = interp(qpos), interp(qvel)
+        held = ctrl[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, None)] if len(t) else np.zeros((0, 12))
+        n = len(grid)
+        return Trajectory(
+            t=grid, dt=dt,
+            base_pos=qp[:, sc.base_qpos[:3]], base_quat=quat_normalize(qp[:, sc.base_qpos[3:]]),
+            base_linvel=qv[:, sc.base_qvel[:3]], base_angvel=qv[:, sc.base_qvel[3:]],
+            joint_pos=qp[:, sc.joint_qpos], joint_vel=qv[:, sc.joint_qvel],
+            box_pos=qp[:, sc.box_qpos[:3]], box_quat=quat_normalize(qp[:, sc.box_qpos[3:]]),
+            box_linvel=qv[:, sc.box_qvel[:3]], box_angvel=qv[:, sc.box_qvel[3:]],
+            ctrl=held, kp=np.full(12, self.settings.kp), kd=np.full(12, self.settings.kd),
+            observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
+            measured_velocity={"base": False, "joint_states": True, "box": False},
+            meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
+                  "mocap": self.settings.mocap, "armed": self.settings.arm, "scene": self.scene.config.to_dict()},
+        )
+
+    def extras(self) -> dict:
+        """``/go1/imu`` (quaternion w,x,y,z, gyro [rad/s], accelerometer [m/s²]) and ``/go1/foot_forces`` [N], as received."""
+        with self._lock:
+            imu, feet = np.array(self._rec["imu"]), np.array(self._rec["feet"])
+        out = {}
+        if len(imu):
+            out["/go1/imu"] = (imu[:, 0], imu[:, 1:], list(IMU_LABELS))
+        if len(feet):
+            out["/go1/foot_forces"] = (feet[:, 0], feet[:, 1:], list(FOOT_LABELS))
+        return out
+
+    def close(self, reason: str | None = None) -> None:
+        """Damp the robot (a burst of damping packets), stop the relay, close the link and the poses. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        if reason:
+            self.relay.damp(reason)
+        self.relay.stop()
+        self.link.close()
+        self.poses.close()

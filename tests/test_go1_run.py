@@ -1,0 +1,174 @@
+"""`amhe run --target go1` end to end against `amhe emulate go1`, all on 127.0.0.1.
+
+Each test starts the emulator and the client as the user would (two
+processes), injects a fault and reads what the emulator received (its
+``--record`` CSV) to check what the client did and when.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import signal
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from amhe_cli.io.reader import read_log
+from amhe_cli.model.scene import STAND_JOINTS
+
+AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+SERVO, DAMPING = 0x0A, 0x00
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Emulator:
+    """`amhe emulate go1` in a subprocess; ``.port`` from its first line, ``.rows()`` from its record."""
+
+    def __init__(self, tmp_path, *args, duration=30):
+        self.pose_port = free_port()
+        self.record = tmp_path / "rx.csv"
+        self.proc = subprocess.Popen(
+            AMHE + ["emulate", "go1", "--task", "t1", "--port", "0", "--pose-to", f"127.0.0.1:{self.pose_port}",
+                    "--record", str(self.record), "--duration", str(duration), *args],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        first = self.proc.stdout.readline()
+        assert "listening on udp://127.0.0.1:" in first, first + self.proc.stderr.read()
+        self.port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
+
+    def client_args(self):
+        return ["--robot", f"127.0.0.1:{self.port}", "--local-port", "0", "--mocap", f"udp:127.0.0.1:{self.pose_port}"]
+
+    def stop(self):
+        self.proc.send_signal(signal.SIGINT)
+        self.proc.wait(10)
+
+    def rows(self):
+        with open(self.record) as fh:
+            rows = list(csv.DictReader(fh))
+        t = np.array([float(r["t"]) for r in rows])
+        valid = np.array([int(r["valid"]) for r in rows], dtype=bool)
+        mode = np.array([[int(r[f"mode_{j}"]) for j in range(12)] for r in rows])
+        q = np.array([[float(r[f"q_{j}"]) for j in range(12)] for r in rows])
+        kp = np.array([[float(r[f"kp_{j}"]) for j in range(12)] for r in rows])
+        kd = np.array([[float(r[f"kd_{j}"]) for j in range(12)] for r in rows])
+        return t, valid, mode, q, kp, kd
+
+
+@pytest.fixture
+def emulator(tmp_path, request):
+    made = []
+
+    def make(*args, duration=30):
+        emu = Emulator(tmp_path, *args, duration=duration)
+        made.append(emu)
+        return emu
+    yield make
+    for emu in made:
+        if emu.proc.poll() is None:
+            emu.stop()
+
+
+def run_client(emu, tmp_path, *args, timeout=90):
+    out = tmp_path / "go1.mcap"
+    proc = subprocess.run(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
+                                  "--threads", "1", "--out", str(out), "--json", *args],
+                          capture_output=True, text=True, timeout=timeout)
+    return proc, out
+
+
+def damped(mode, kp, kd):
+    """(N,) rows where every motor is in damping: mode 0x00, or Kp 0 with Kd > 0."""
+    return (mode == DAMPING).all(axis=1) | ((kp == 0).all(axis=1) & (kd > 0).all(axis=1))
+
+
+def first_valid_time(t, valid):
+    return t[np.argmax(valid)]
+
+
+@pytest.mark.parametrize("fault", ["link-loss", "corrupt"])
+def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, fault):
+    emu = emulator("--fault", f"{fault}@4.5")
+    proc, out = run_client(emu, tmp_path, "--arm", "--duration", "20")
+    emu.stop()
+    assert proc.returncode == 2, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(errors) == 1 and "no valid robot state" in errors[0] and "Traceback" not in proc.stderr
+    assert json.loads(proc.stdout)["failure"].startswith("no valid robot state")
+    t, valid, mode, q, kp, kd = emu.rows()
+    t_loss = first_valid_time(t, valid) + 4.5
+    before = (t < t_loss) & valid
+    assert (mode[before] == SERVO).all(axis=1).sum() > 500  # it was standing and walking on servo commands
+    after = (t >= t_loss) & valid & damped(mode, kp, kd)
+    assert after.any(), "no damping command after the fault"
+    assert t[after][0] - t_loss <= 0.05 + 0.004  # within 50 ms of the last state (+ two emulator ticks)
+    assert damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # and damping from then on
+    traj = read_log(str(out))  # the recording is closed and readable
+    assert traj.duration > 1.0
+
+
+def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
+    emu = emulator("--fault", "mocap-freeze@4.5")
+    proc, out = run_client(emu, tmp_path, "--arm", "--duration", "5", "-q")
+    emu.stop()
+    assert "motion capture stale: holding the stand" in proc.stderr
+    t, valid, mode, q, kp, kd = emu.rows()
+    t_freeze = first_valid_time(t, valid) + 4.5
+    held = valid & (t > t_freeze + 0.15) & (mode == SERVO).all(axis=1)
+    assert held.sum() > 50
+    assert np.abs(q[held] - STAND_JOINTS).max() < 0.02  # the stand, not the plan
+    assert read_log(str(out)).duration > 1.0
+
+
+def test_ctrl_c_damps_and_keeps_the_recording(emulator, tmp_path):
+    emu = emulator()
+    out = tmp_path / "go1.mcap"
+    proc = subprocess.Popen(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
+                                    "--threads", "1", "--out", str(out), "--arm", "--duration", "20", "-q"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(5.0)  # past the start-up and the 2 s ramp: the planner has begun
+    t_int = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    emu.stop()
+    t, valid, mode, q, kp, kd = emu.rows()
+    assert (mode[valid] == SERVO).all(axis=1).any()
+    assert damped(mode, kp, kd)[valid][-20:].all()  # the damping burst is the last thing the robot heard
+    assert time.monotonic() - t_int < 30
+    assert read_log(str(out)).duration > 1.0
+
+
+def test_dry_run_sends_damping_only_and_records_the_plan(emulator, tmp_path):
+    emu = emulator()
+    proc, out = run_client(emu, tmp_path, "--dry-run", "--duration", "2")
+    emu.stop()
+    assert proc.returncode == 0, proc.stderr
+    t, valid, mode, q, kp, kd = emu.rows()
+    assert valid.sum() > 500 and damped(mode, kp, kd)[valid].all()
+    traj = read_log(str(out))
+    assert traj.duration > 1.5
+    # what it would have sent: the planner's targets (inside the SDK limits, replanned), not the damping zeros
+    from amhe_cli.plants.go1.safety import SDK_JOINT_LOWER, SDK_JOINT_UPPER
+    assert ((traj.ctrl >= SDK_JOINT_LOWER - 1e-6) & (traj.ctrl <= SDK_JOINT_UPPER + 1e-6)).all()
+    assert (traj.ctrl[:, 2::3] < -0.8).all() and np.ptp(traj.ctrl, axis=0).max() > 0.01
+
+
+def test_no_robot_is_a_one_line_error(tmp_path):
+    proc = subprocess.run(AMHE + ["run", "--target", "go1", "--robot", f"127.0.0.1:{free_port()}", "--local-port", "0",
+                                  "--mocap", f"udp:127.0.0.1:{free_port()}", "--out", str(tmp_path / "x.mcap")],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(errors) == 1 and "no valid LowState from 127.0.0.1" in errors[0]
+    assert not (tmp_path / "x.mcap").exists()
