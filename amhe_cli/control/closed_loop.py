@@ -429,7 +429,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator.close()
     if failure is not None:
         warn(f"run stopped: {failure}")
-    traj = plant.trajectory()
+    traj = plant.recording()
     box_final = traj.box_pos[-1, :2] if len(traj) else np.asarray(task.box_start, dtype=float)
     e_g = task.goal_error(box_final)
     speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)

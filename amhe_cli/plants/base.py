@@ -93,6 +93,10 @@ class Plant(ABC):
     def trajectory(self, last: float | None = None) -> Trajectory:
         """The recording so far (or its ``last`` seconds) on the ``record_dt`` grid."""
 
+    def recording(self) -> Trajectory:
+        """The whole recording as it should be logged (default: :meth:`trajectory`)."""
+        return self.trajectory()
+
     def close(self, reason: str | None = None) -> None:
         """End the plant's run; ``reason`` says what failed (a real robot is damped either way)."""
 

@@ -106,6 +106,7 @@ class Go1Plant(Plant):
         self._t0: float | None = None
         self._measured_at = 0.0
         self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "imu", "feet")}
+        self._raw: dict[str, list] = {"base": [], "box": []}  # (t, pos (3,), quat (4,)) as each pose arrived
         self._ctrl = scene.model.qpos0[scene.joint_qpos].copy()
         self._messages: list[str] = []
         self._mocap_was_ok = True
@@ -159,6 +160,10 @@ class Go1Plant(Plant):
                 self._mocap_was_ok = fresh
             if self._t0 is None or now < self._t0:
                 return
+            for key, sample in (("base", base), ("box", box)):
+                raw = self._raw[key]
+                if sample is not None and (not raw or raw[-1][3] != sample.seq):
+                    raw.append((sample.received - self._t0, sample.pos, sample.quat, sample.seq))
             if q_sent is not None and mode != MODE_DAMPING:
                 self._ctrl = np.asarray(q_sent, dtype=float)
             elif self.relay.would_send:
@@ -205,8 +210,13 @@ class Go1Plant(Plant):
     def trajectory(self, last: float | None = None) -> Trajectory:
         """The recording since time 0 (or its ``last`` seconds), resampled onto a uniform 2 ms grid.
 
-        Joint targets are held (zero-order) between ticks; positions and
-        velocities are interpolated linearly, quaternions renormalised.
+        Joint targets are held (zero-order) between ticks; joints, the trunk's
+        orientation and all velocities are the estimator's, interpolated
+        linearly; the trunk's and the box's positions (and the box's
+        orientation) interpolate the motion-capture samples as they arrived —
+        what a log of the same streams would hold — rather than the
+        estimator's poses carried forward between them, whose 8 ms sawtooth
+        differentiates into metres per second of noise.
         """
         with self._lock:
             t = np.array(self._rec["t"])
@@ -215,6 +225,7 @@ class Go1Plant(Plant):
             qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
+            raw = {key: list(v) for key, v in self._raw.items()}
         sc, dt = self.scene, self.record_dt
         if len(t) == 0:
             grid = np.zeros(0)
@@ -225,6 +236,11 @@ class Go1Plant(Plant):
             return np.stack([np.interp(grid, t, a[:, j]) for j in range(a.shape[1])], axis=1) if len(t) \
                 else np.zeros((0, a.shape[1]))
         qp, qv = interp(qpos), interp(qvel)
+        for key, idx in (("base", sc.base_qpos[:3]), ("box", sc.box_qpos)):
+            if len(raw[key]) >= 2 and len(grid):
+                rt = np.array([r[0] for r in raw[key]])
+                vals = np.array([np.concatenate([r[1], r[2]]) for r in raw[key]])[:, :len(idx)]
+                qp[:, idx] = np.stack([np.interp(grid, rt, vals[:, j]) for j in range(len(idx))], axis=1)
         held = ctrl[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, None)] if len(t) else np.zeros((0, 12))
         n = len(grid)
         return Trajectory(
@@ -240,6 +256,24 @@ class Go1Plant(Plant):
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
                   "mocap": self.settings.mocap, "armed": self.settings.arm, "scene": self.scene.config.to_dict()},
         )
+
+    def recording(self) -> Trajectory:
+        """The recording as a log of these streams would hold it: the box pose only where a mocap sample
+        arrived (at the nearest 2 ms grid point, the sample's own values), so a reader resamples and
+        smooths it as it does any motion-capture log, rather than differentiating an interpolation."""
+        traj = self.trajectory()
+        with self._lock:
+            raw = list(self._raw["box"])
+        if not len(traj) or not raw:
+            return traj
+        seen = np.zeros(len(traj), dtype=bool)
+        for t, pos, quat, _ in raw:
+            idx = int(round((t - traj.t[0]) / traj.dt))
+            if 0 <= idx < len(traj):
+                traj.box_pos[idx], traj.box_quat[idx] = pos, quat
+                seen[idx] = True
+        traj.observed["box"] = seen
+        return traj
 
     def extras(self) -> dict:
         """``/go1/imu`` (quaternion w,x,y,z, gyro [rad/s], accelerometer [m/s²]) and ``/go1/foot_forces`` [N], as received."""
