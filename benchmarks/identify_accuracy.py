@@ -5,9 +5,12 @@ Usage::
     python benchmarks/identify_accuracy.py LOG TRUTH.yaml [--seeds 4] [--jobs 4] [--threads 2]
         [--setting name:clips,popsize,generations ...] [--params box_mass,box_friction]
 
-TRUTH.yaml is a ground-truth file as shipped beside the shared logs (box
-``mass_schedule[0].mass_kg`` and ``floor.regions[0].mu_sliding_box_floor``) or
-an amhe belief. Each (setting, seed) runs in its own process with ``--threads``
+TRUTH.yaml is either an amhe belief (``parameters.box_mass.value``,
+``parameters.box_friction.value``) or a ground-truth YAML holding
+``box: {mass_schedule: [{mass_kg: M}, ...]}`` and
+``floor: {regions: [{mu_sliding_box_floor: MU}, ...]}`` (the first entry of each
+is used). For logs amhe wrote, the truth is also in their ``amhe_truth``
+metadata record (docs/log_schema.md#metadata-records). Each (setting, seed) runs in its own process with ``--threads``
 rollout threads; the table gives mean ± std over seeds of the mass error [%],
 the friction error, and the wall time. Last line: ``worst_mass_err_pct=… worst_mu_err=…``.
 """

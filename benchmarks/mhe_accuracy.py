@@ -5,14 +5,15 @@ Usage::
     python benchmarks/mhe_accuracy.py --mass-switch LOG [--friction-step LOG ...] [--seeds 6] [--jobs 4]
         [--config name:key=value;key=value ...]
 
-Targets (the mhe-replay issue): on a mass-switch log (4 -> 6 kg at 10 s) the
+Targets: on a mass-switch log (4 -> 6 kg at 10 s) the
 mass is within 10 % of 4 kg over 8-10 s and of 6 kg from 13 s on, friction
 within 0.1 of the truth throughout; on a friction-step log (truth CSV beside it)
 the friction is within 0.1 of the new value 3 s after the step ("@3s") and
 from then on ("from 3s"). Each (config, log, seed) runs in its own process; the
 table gives the fraction of runs meeting each target and the worst errors.
 Friction-step logs come from ``amhe run --task t4 --mode true`` (the box
-crosses from μ 0.4 to 0.8 at x = 1.5 m; truth CSV beside the log).
+crosses from μ 0.4 to 0.8 at x = 1.5 m; truth CSV beside the log), mass-switch
+logs from ``amhe run --task t3 --mode true`` (4 -> 6 kg at 10 s; docs/tasks.md).
 """
 
 from __future__ import annotations

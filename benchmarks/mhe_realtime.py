@@ -2,7 +2,12 @@
 
 Usage::
 
-    python benchmarks/mhe_realtime.py [LOG]      # default: ../shared/logs/mass_switch.mcap
+    python benchmarks/mhe_realtime.py [LOG]
+
+LOG: any push log, e.g. one recorded by ``amhe run --task t3 --mode true`` (the
+box's mass switches 4 -> 6 kg at 10 s; docs/tasks.md). Without LOG it looks for
+``shared/logs/mass_switch.mcap`` beside the checkout, which is not part of the
+repository.
 
 Runs ``amhe mhe-replay LOG --realtime`` with the default settings (all rollout
 threads of this machine), prints the updates that fell behind and the lag, and

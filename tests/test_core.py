@@ -125,7 +125,7 @@ def test_scene_actuators_in_go1_order(scene):
 def test_scene_robot_mass(scene):
     m = scene.model
     robot = [b for b in range(1, m.nbody) if b != scene.box_body]
-    expected = 5.204 + 4 * (0.68 + 1.009 + 0.195862)  # DESIGN.md §5
+    expected = 5.204 + 4 * (0.68 + 1.009 + 0.195862)  # docs/reference.md#go1
     assert m.body_mass[robot].sum() == pytest.approx(expected, abs=1e-6)
     assert m.body_mass[robot].sum() == pytest.approx(12.74, abs=0.01)
     assert m.body_mass[scene.box_body] == pytest.approx(SceneConfig().box_mass)

@@ -40,7 +40,7 @@ from amhe_cli.io.reader import (
 from amhe_cli.io.writer import McapLog, write_mcap
 from amhe_cli.io.trajectory import GO1_JOINTS, SIGNALS, Trajectory
 
-# shared/ lies beside the checkout (DESIGN.md), in CI as in development
+# an optional simulated log outside the repository (shared/logs beside the checkout); tests needing it skip without it
 CONST_A = Path(__file__).resolve().parents[2] / "shared" / "logs" / "const_a.mcap"
 STAND = np.tile([0.0, 0.9, -1.8], 4)
 ANYMAL = {"FR": "RF", "FL": "LF", "RR": "RH", "RL": "LH"}

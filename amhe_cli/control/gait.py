@@ -15,7 +15,7 @@ through the leg inverse kinematics of :mod:`~amhe_cli.control.maneuver`:
   by ``benchmarks/gait_calibration.py``, make the reference ask for what the
   plant then realises, so the planner's mean already walks at the command.
 
-Three gaits cover the tasks (DESIGN.md §6): ``trot`` (diagonal pairs, T1–T4),
+Three gaits cover the tasks (docs/tasks.md): ``trot`` (diagonal pairs, T1–T4),
 ``stand`` (all feet planted) and ``tripod`` (front-right foot free for a
 one-leg push, T5: that leg's reference is a raised, forward-reaching pose and
 the planner moves it freely).

@@ -37,7 +37,7 @@ from amhe_cli.control.tasks import Task
 
 @dataclass
 class PlannerSettings:
-    """MPOPI hyper-parameters (defaults: the public Go1 box-pushing MPPI, DESIGN.md §7).
+    """MPOPI hyper-parameters (defaults: the public Go1 box-pushing MPPI, docs/reference.md#planner-reference).
 
     Attributes:
         dt: planner model timestep [s] (coarser than the plant's).

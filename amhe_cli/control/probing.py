@@ -38,7 +38,7 @@ def simulate_probe(truth: dict, config: SceneConfig | None = None, seed: int = 0
             (``strike``, ``hold``, ``retreat``, ``rest`` [s]).
         friction_step: (x_b [m], μ after) — the box–floor friction of the plant
             switches to μ after once the box centre passes x = x_b (task T4's
-            event, DESIGN.md §6).
+            event, docs/tasks.md).
     Returns:
         the recorded :class:`Trajectory` on the plant's 2 ms grid, with the
         plant's ``meta['truth']`` and ``meta['truth_series']`` (see

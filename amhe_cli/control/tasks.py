@@ -1,4 +1,4 @@
-"""The loco-manipulation tasks T1–T5 (paper §V-A, DESIGN.md §6) and their costs.
+"""The loco-manipulation tasks T1–T5 (paper §V-A; docs/tasks.md) and their costs.
 
 A :class:`Task` says where the box starts and must go, which gait the robot
 uses, which events change the *plant* mid-run (T3's mass switch, T4's floor
@@ -338,7 +338,7 @@ def _tilt(quat: np.ndarray) -> np.ndarray:
     return 2 * (x * x + y * y)
 
 
-#: The tasks by name (DESIGN.md §6). The robot starts at the origin facing +x; the box just ahead of its head.
+#: The tasks by name (docs/tasks.md). The robot starts at the origin facing +x; the box just ahead of its head.
 TASKS = {
     "t1": Task("t1", box_start=(0.52, 0.0), goal=(2.0, 0.0)),
     "t2": Task("t2", box_start=(0.52, 0.0), goal=(0.52 + 1.0, 1.0), circle=(0.52, 1.0, 1.0, np.pi / 2),

@@ -8,7 +8,7 @@ consecutive clips (or one clip covering the whole window).
 
 Where clips start matters more than how many there are: a resting box says
 nothing about its mass or friction, so starts are drawn with probability
-proportional to how much the box moves and is pushed around them (DESIGN.md §4:
+proportional to how much the box moves and is pushed around them (docs/reference.md#identification:
 the mass shows only during robot–box bumps, free sliding pins down μ).
 """
 

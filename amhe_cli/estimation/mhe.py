@@ -60,8 +60,8 @@ class MHESettings:
         sigma_floor: ``σ_floor`` in the same units: stop iterating once every σ is below it.
         pull: name -> σ_pull of ``W_p = diag(1/σ_pull²)`` toward ``p̂⁻``.
         clip: clip length [s] for multiple shooting, or None for one piece.
-            0.1 s by measurement (benchmarks/mhe_accuracy.py, 6 seeds on
-            mass_switch): one piece met the targets in 0/6 runs at real-time
+            0.1 s by measurement (benchmarks/mhe_accuracy.py, 6 seeds on a
+            mass-switch log, box 4 → 6 kg at 10 s): one piece met the targets in 0/6 runs at real-time
             factor 0.38, 0.1 s clips in 4/6 at 1.12 (one thread each) — an
             open-loop second drifts on contact details the clips reset.
         max_steps: simulated steps per candidate per update (the most excited clips are kept).

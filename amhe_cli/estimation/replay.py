@@ -90,7 +90,7 @@ def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False
 
 # -- ground truth -------------------------------------------------------------------
 
-#: Columns of a ``<log>.truth.csv`` (as shipped beside the shared logs) per parameter.
+#: Columns of a ``<log>.truth.csv`` per parameter (docs/log_schema.md#ground-truth).
 TRUTH_COLUMNS = {
     "box_mass": ("box_mass_kg",),
     "box_inertia": ("box_Ixx", "box_Iyy", "box_Izz"),

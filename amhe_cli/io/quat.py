@@ -1,6 +1,6 @@
 """Quaternion and velocity-frame helpers, vectorised over leading axes.
 
-This is the **one** place where quaternion order is converted (DESIGN.md §3):
+This is the **one** place where quaternion order is converted (docs/log_schema.md#frames-and-units):
 ROS messages store (x, y, z, w), MuJoCo and every array inside ``amhe`` store
 (w, x, y, z). Readers call :func:`ros_to_mj` as they unpack a message, writers
 call :func:`mj_to_ros` as they pack one; nothing else reorders components.

@@ -1,7 +1,7 @@
 """Noise estimates and zero-phase smoothing of recorded poses.
 
 A backward difference is the exact velocity of a clean MuJoCo log (semi-implicit
-Euler, DESIGN.md §4b), but motion capture has noise: 1 mm at 500 Hz becomes
+Euler, docs/reference.md#identification), but motion capture has noise: 1 mm at 500 Hz becomes
 0.7 m/s of velocity noise, and every clip would start with the box flying. So a
 pose stream is smoothed only where its noise shows:
 
@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Noise below this is what clean 2 ms simulations show (const_a: base 4e-6 m, 2.5e-5 rad
+#: Noise below this is what clean 2 ms simulations show (a simulated push log: base 4e-6 m, 2.5e-5 rad
 #: of real gait motion): leave it. [m] for positions, [rad] for orientations.
 CLEAN_SIGMA = 2e-5
 CLEAN_SIGMA_ROT = 1e-4

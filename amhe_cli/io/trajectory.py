@@ -1,4 +1,4 @@
-"""The recorded trajectory every subcommand works on (DESIGN.md §2).
+"""The recorded trajectory every subcommand works on (docs/reference.md#architecture).
 
 A :class:`Trajectory` holds a log's signals on **one uniform time grid**, already
 converted to MuJoCo conventions:

@@ -269,7 +269,7 @@ class ParameterSpace:
 
         Calls ``mujoco.mj_setConst`` after inertial changes: without it
         ``body_invweight0`` stays stale and the contact solver behaves as if
-        the mass were the old one (DESIGN.md §4).
+        the mass were the old one (docs/reference.md#mujoco).
         """
         vals = self.values(vec)
         b = self.scene.box_body

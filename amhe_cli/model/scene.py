@@ -6,7 +6,7 @@ geometry (box size, floor height, friction regions) comes from a
 :class:`SceneConfig`, which :func:`infer_scene_config` derives from a log so that a
 log recorded in another world frame or with another box still lines up.
 
-Contact design (DESIGN.md §4): the box touches the floor **only** through one
+Contact design (docs/reference.md#mujoco): the box touches the floor **only** through one
 explicit ``<pair>`` per floor region, so "box–floor friction" is exactly the
 pair's sliding coefficient; the robot's feet keep their own friction (priority 1)
 and robot–box contacts use the robot geoms' 0.6. Cones are elliptic.
@@ -26,7 +26,7 @@ from amhe_cli.errors import AmheError
 from amhe_cli.io.quat import quat_face_tilt
 from amhe_cli.io.trajectory import GO1_JOINTS, Trajectory
 
-#: Standing joint pose per leg (hip, thigh, calf) [rad], DESIGN.md §5.
+#: Standing joint pose per leg (hip, thigh, calf) [rad], docs/reference.md#go1.
 STAND_JOINTS = np.tile([0.0, 0.9, -1.8], 4)
 FOOT_RADIUS = 0.023
 #: A box tilted less than this from lying on a face counts as level when finding its floor [deg].

@@ -1,4 +1,4 @@
-"""The one plant interface the closed loop drives (DESIGN.md §2 "Plant").
+"""The one plant interface the closed loop drives (docs/reference.md#architecture, "Plant").
 
 The planner and the MHE never know which plant they drive: the closed loop
 (:func:`~amhe_cli.control.closed_loop.run_task`) only

@@ -2,7 +2,7 @@
 
 :class:`Go1Emulator` steps a :class:`~amhe_cli.plants.sim.SimPlant` in real time
 at its 2 ms step and speaks the robot's side of the legged_sdk 3.8 low-level
-link (DESIGN.md §5): a UDP socket bound on ``(host, port)`` (the robot's is
+link (docs/reference.md#go1-low-level-link): a UDP socket bound on ``(host, port)`` (the robot's is
 192.168.123.10:8007) takes 614-byte ``LowCmd`` packets and answers the sender
 of the last valid one with an 807-byte ``LowState`` every tick (500 Hz; the
 real robot streams up to 1 kHz). There is no handshake, and until a valid
@@ -144,7 +144,7 @@ class EmulatorStats:
 
 
 def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray) -> np.ndarray:
-    """Torques (12,) [N·m] the Go1 motors apply for a command, per motor (DESIGN.md §5).
+    """Torques (12,) [N·m] the Go1 motors apply for a command, per motor (docs/reference.md#go1-low-level-link).
 
     Mode 0x0A (servo): ``Kp (q* - q) + Kd (dq* - dq) + tau_ff``, where a q* at
     ``PosStopF`` drops the position term and a dq* at ``VelStopF`` uses dq* = 0.

@@ -1,4 +1,4 @@
-"""The client side of the Go1 low-level UDP link (legged_sdk 3.8; DESIGN.md §5).
+"""The client side of the Go1 low-level UDP link (legged_sdk 3.8; docs/reference.md#go1-low-level-link).
 
 No handshake: the client sends a :class:`~amhe_cli.plants.go1.protocol.LowCmd`
 from its local port (8080) to the robot (192.168.123.10:8007) and the robot

@@ -1,7 +1,7 @@
 """Motion capture for the Go1 plant: trunk and box poses, checked before use.
 
-The Go1's low-level state holds no base position or linear velocity (DESIGN.md
-§5), so the closed loop takes the trunk's and the box's poses from motion
+The Go1's low-level state holds no base position or linear velocity
+(docs/reference.md#go1-low-level-link), so the closed loop takes the trunk's and the box's poses from motion
 capture (the public Go1 box-pushing setup streamed OptiTrack rigid bodies
 ``Go1_body`` and ``Box_body`` at 120 Hz). Two ways in, one interface:
 

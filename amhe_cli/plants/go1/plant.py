@@ -276,7 +276,8 @@ class Go1Plant(Plant):
         return traj
 
     def extras(self) -> dict:
-        """``/go1/imu`` (quaternion w,x,y,z, gyro [rad/s], accelerometer [m/s²]) and ``/go1/foot_forces`` [N], as received."""
+        """``/go1/imu`` (quaternion w,x,y,z, gyro [rad/s], accelerometer [m/s²]) and ``/go1/foot_forces``
+        (the robot's raw int16 counts; the emulator sends newtons), as received."""
         with self._lock:
             imu, feet = np.array(self._rec["imu"]), np.array(self._rec["feet"])
         out = {}

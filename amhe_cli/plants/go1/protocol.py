@@ -1,7 +1,7 @@
 """The Go1 low-level UDP protocol (legged_sdk 3.8): LowCmd / LowState codec and CRC.
 
 Byte layout, checked field by field against the official ``unitree-legged-sdk``
-3.8.20231105 wheel (DESIGN.md §5; its ``robot_interface`` packs and unpacks
+3.8.20231105 wheel (docs/reference.md#go1-low-level-link; its ``robot_interface`` packs and unpacks
 these packets). All integers and floats are little-endian, no padding.
 
 LowCmd, 614 bytes (client -> robot)::

@@ -29,7 +29,7 @@ from amhe_cli.errors import AmheError
 #: Tighter than the URDF ranges; a target outside them is clamped, not refused.
 SDK_JOINT_LOWER = np.tile([-1.047, -0.663, -2.721], 4)
 SDK_JOINT_UPPER = np.tile([1.047, 2.966, -0.837], 4)
-#: Go1 motor torque limits [N·m] per joint kind (hip, thigh, calf), DESIGN.md §5.
+#: Go1 motor torque limits [N·m] per joint kind (hip, thigh, calf), docs/reference.md#go1.
 TORQUE_LIMIT = np.tile([23.7, 23.7, 35.55], 4)
 
 
