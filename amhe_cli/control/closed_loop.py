@@ -66,6 +66,11 @@ MHE_PARAMS = ("box_mass", "box_friction")
 #: Longest latency compensation on the wall clock [s]: a planner slower than this is
 #: better off replanning from the measured state than from a long open-loop prediction.
 MAX_LEAD = 0.15
+#: Largest share of wall time the MHE thread may be busy on a wall-clock plant: an update
+#: due sooner after the last one than this allows waits for the next slot. Updates that
+#: ran back to back took a core from the planner's rollouts (T1 on the Go1 emulator,
+#: 2 cores: planner 74 ms a cycle with the MHE, 50 ms without).
+MHE_DUTY = 0.5
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)
 
@@ -87,10 +92,18 @@ class EstimatorThread:
         self._thread: threading.Thread | None = None
         self._result: Update | None = None
         self.errors: list[str] = []
+        self.compute_time = 0.0  # wall time of the last finished update [s]
+        self.finished_at = -np.inf  # time.monotonic() when it finished
 
     @property
     def busy(self) -> bool:
         return self._thread is not None and self._thread.is_alive()
+
+    def rested(self, duty: float) -> bool:
+        """Idle long enough since the last update that starting one now keeps the thread's busy
+        share of wall time at most ``duty`` (0 < duty <= 1)."""
+        idle = time.monotonic() - self.finished_at
+        return not self.busy and idle >= self.compute_time * (1.0 / duty - 1.0)
 
     def submit(self, traj: Trajectory, t: float) -> bool:
         """Start an update over ``traj`` up to ``t`` [s]; False (nothing started) while one still runs."""
@@ -98,6 +111,7 @@ class EstimatorThread:
             return False
 
         def work():
+            t0 = time.monotonic()
             try:
                 res = self.mhe.update(traj, t)
             except Exception as exc:  # noqa: BLE001 - the controller must survive any estimator failure
@@ -105,6 +119,9 @@ class EstimatorThread:
                     self.errors.append(f"t={t:.2f} s: MHE update failed ({type(exc).__name__}: {exc}); "
                                        "keeping the last estimate")
                 return
+            finally:
+                self.finished_at = time.monotonic()
+                self.compute_time = self.finished_at - t0
             with self._lock:
                 self._result = res
 
@@ -311,6 +328,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         messages.append(text), warnings.append(text)
 
     failure = None
+    mhe_deferred = 0
     estimator, planner = None, None
     plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
@@ -406,7 +424,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 for text in estimator.take_errors():
                     warn(text)
                 if now >= next_update - 1e-9:
-                    if estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
+                    if plant.realtime and not estimator.rested(MHE_DUTY):
+                        mhe_deferred += 1  # the planner's core share comes first on the wall clock
+                    elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True
                     else:
                         warn(f"t={now:.2f} s: MHE update skipped, the last one is still running")
@@ -427,6 +447,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         planner.close()
         if estimator is not None:
             estimator.close()
+    if estimator is not None and mhe_deferred:
+        messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator under "
+                        f"{MHE_DUTY:.0%} of a core on the wall clock")
     if failure is not None:
         warn(f"run stopped: {failure}")
     traj = plant.recording()
@@ -453,7 +476,7 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     read it back), the planner's parameters on ``/amhe/estimate``, the truth at
     the start (``amhe_truth`` metadata), the run settings and metrics
     (``amhe_run``) and what went wrong along the way (``amhe_run_log``). The CSV
-    holds the truth over time in the shared logs' columns (``t``,
+    holds the truth over time in the columns of docs/log_schema.md#ground-truth (``t``,
     ``box_mass_kg``, ``mu_floor_at_box_center``) where the truth is known (not on a
     real robot). The plant's raw streams (``result.extras``: topic -> (t, values,
     labels), e.g. the Go1's IMU and foot forces) are written as labelled arrays.
