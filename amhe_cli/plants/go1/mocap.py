@@ -113,6 +113,28 @@ def _unit_quat(q_wxyz: np.ndarray, what: str) -> np.ndarray:
     return q_wxyz / norm
 
 
+def _pose_arrays(poses, name) -> tuple[np.ndarray, np.ndarray]:
+    """(pos (3,), quat (4,)) float arrays of ``poses[name]``; AmheError naming the body when malformed."""
+    if not isinstance(name, str) or not name:
+        raise AmheError(f"rigid-body name must be a non-empty string, got {name!r}")
+    pose = poses[name]
+    try:
+        pos, quat = pose
+    except (TypeError, ValueError):
+        raise AmheError(f"pose of {name} must be (pos (3,), quat (4,) w,x,y,z), got {pose!r:.80}") from None
+    pos, quat = np.array(pos, dtype=float), np.array(quat, dtype=float)
+    if pos.shape != (3,) or quat.shape != (4,):
+        raise AmheError(f"pose of {name}: expected pos (3,) and quat (4,), got {pos.shape} and {quat.shape}")
+    if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
+        raise AmheError(f"pose of {name} has non-finite values: pos {pos.tolist()}, quat {quat.tolist()}")
+    return pos, quat
+
+
+def _check_poses(poses) -> None:
+    if not isinstance(poses, dict):
+        raise AmheError(f"poses must be a dict name -> (pos (3,), quat (4,) w,x,y,z), got {type(poses).__name__}")
+
+
 def encode_pose_datagram(poses: dict, stamp: float) -> bytes:
     """Pack poses into one pose-stream datagram (docs/pose_stream.md, version 1).
 
@@ -130,22 +152,10 @@ def encode_pose_datagram(poses: dict, stamp: float) -> bytes:
     """
     if not isinstance(stamp, (int, float, np.number)) or isinstance(stamp, bool) or not math.isfinite(stamp):
         raise AmheError(f"pose stamp must be a finite number of seconds, got {stamp!r}")
-    if not isinstance(poses, dict):
-        raise AmheError(f"poses must be a dict name -> (pos (3,), quat (4,) w,x,y,z), got {type(poses).__name__}")
+    _check_poses(poses)
     bodies = {}
-    for name, pose in poses.items():
-        if not isinstance(name, str) or not name:
-            raise AmheError(f"rigid-body name must be a non-empty string, got {name!r}")
-        try:
-            pos, quat = pose
-        except (TypeError, ValueError):
-            raise AmheError(f"pose of {name} must be (pos (3,), quat (4,) w,x,y,z), got {pose!r:.80}") from None
-        pos = np.asarray(pos, dtype=float)
-        quat = np.asarray(quat, dtype=float)
-        if pos.shape != (3,) or quat.shape != (4,):
-            raise AmheError(f"pose of {name}: expected pos (3,) and quat (4,), got {pos.shape} and {quat.shape}")
-        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(quat))):
-            raise AmheError(f"pose of {name} has non-finite values: pos {pos.tolist()}, quat {quat.tolist()}")
+    for name in poses:
+        pos, quat = _pose_arrays(poses, name)
         bodies[name] = {"pos": [float(v) for v in pos], "quat_xyzw": [float(v) for v in mj_to_ros(quat)]}
     obj = {"v": POSE_STREAM_VERSION, "t": float(stamp), "bodies": bodies}
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode("utf-8")
@@ -737,19 +747,13 @@ class PoseSender:
         """
         if self._sock.fileno() < 0:
             raise AmheError("PoseSender is closed")
-        if not isinstance(poses, dict):
-            raise AmheError(f"poses must be a dict name -> (pos (3,), quat (4,) w,x,y,z), got {type(poses).__name__}")
+        _check_poses(poses)
         noisy = {}
-        for name, pose in poses.items():
-            try:
-                pos, quat = pose
-            except (TypeError, ValueError):
-                raise AmheError(f"pose of {name} must be (pos (3,), quat (4,) w,x,y,z), got {pose!r:.80}") from None
-            pos = np.array(pos, dtype=float)
-            quat = np.array(quat, dtype=float)
-            if self.noise_pos > 0 and pos.shape == (3,):
+        for name in poses:
+            pos, quat = _pose_arrays(poses, name)
+            if self.noise_pos > 0:
                 pos = pos + self._rng.normal(0.0, self.noise_pos, 3)
-            if self.noise_rot > 0 and quat.shape == (4,):
+            if self.noise_rot > 0:
                 quat = quat_mul(quat, quat_from_rotvec(self._rng.normal(0.0, self.noise_rot, 3)))
                 quat = quat / np.linalg.norm(quat)
             noisy[name] = (pos, quat)
