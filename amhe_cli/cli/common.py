@@ -18,7 +18,27 @@ from amhe_cli.errors import AmheError
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.estimation.identify import IdentifyResult, IdentifySettings, identify, settings_dict
 from amhe_cli.estimation.problem import Problem
-from amhe_cli.model.params import PARAMETERS, parse_names
+from amhe_cli.model.params import INERTIA_RATIO_STD, PARAMETERS, parse_names
+from amhe_cli.model.scene import SceneConfig
+
+
+def nominal_prior_text() -> str:
+    """The default prior in words, read from the code (the nominal box of
+    :class:`~amhe_cli.model.scene.SceneConfig` and the parameters' prior σ), for ``--prior`` help."""
+    cfg, p = SceneConfig(), PARAMETERS
+    return (f"the nominal box: mass {cfg.box_mass:g} kg (σ {p['box_mass'].prior_std[0]:g} kg), "
+            f"box-floor μ {cfg.regions[0].mu:g} (σ {p['box_friction'].prior_std[0]:g}), "
+            f"inertia of a uniform box of that mass and --box-size (σ {INERTIA_RATIO_STD:.0%})")
+
+
+#: ``--task`` help of ``run`` and ``evaluate``: the tasks in one line each, T5's state said plainly.
+TASK_HELP = ("Task (box 4 kg, μ 0.5 unless said): t1 push it 1.5 m straight ahead (40 s); t2 along a "
+             "quarter circle of radius 1 m (60 s); t3 2.5 m straight, its mass becomes 6 kg at t = 10 s (60 s); "
+             "t4 2 m straight, μ 0.4 then 0.8 past x = 1.5 m (60 s); t5 0.5 m sideways on three legs (20 s; "
+             "experimental: does not reach its goal yet). Success: the box ends within 0.2 m of the goal and "
+             "the robot never falls.")
+#: Said before a t5 run or evaluation.
+T5_WARNING = "task t5 is experimental: the tripod side push does not reach its goal yet"
 
 
 def log_options(f):
@@ -41,7 +61,7 @@ def identify_options(f):
                      help=f"Free parameters, comma-separated, from: {', '.join(PARAMETERS)}. "
                           "Default: box_mass,box_inertia,box_friction."),
         click.option("--prior", type=click.Path(), default=None,
-                     help="Belief YAML to start from (its values and stds)."),
+                     help="Belief YAML to start from (its values and stds). Default: " + nominal_prior_text() + "."),
         click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000),
                      help="Number of clips N_c."),
         click.option("--horizon", default="0.1,0.2", show_default=True, metavar="MIN,MAX",
@@ -49,7 +69,8 @@ def identify_options(f):
         click.option("--popsize", default=12, show_default=True, type=click.IntRange(2, 10000),
                      help="CMA-ES candidates per generation (B)."),
         click.option("--generations", default=40, show_default=True, type=click.IntRange(1, 100000),
-                     help="CMA-ES generation limit (it stops earlier once converged)."),
+                     help="CMA-ES generation limit (it stops earlier once converged; stopping here first "
+                          "gives a warning and \"converged\": false in --json)."),
         click.option("--prior-weight", default=1.0, show_default=True, type=click.FloatRange(0),
                      help="Scale of the prior term W_p (0 disables it)."),
         click.option("--seed", default=0, show_default=True, type=int, help="Seed for clips, CMA-ES and the sim."),
@@ -72,26 +93,149 @@ def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, 
                             max_gen=generations, prior_weight=prior_weight, seed=seed, t_range=tr)
 
 
-def output_path(out: str | None, log: str, suffix: str, force: bool) -> Path:
-    """Where an output goes: ``out``, or ``<log stem><suffix>`` in the working directory.
+def check_outputs(force: bool, *outputs: tuple[str, str | Path | None]) -> list[Path | None]:
+    """The one overwrite rule of every subcommand: claim each file a command will write, before any work.
+
+    Call it with every output (belief YAML, CSV, MCAP, PNG, truth CSV, estimates
+    MCAP) right after parsing the options, so a refusal costs the user nothing.
+
+    Args:
+        force: ``--force`` was given: existing files may be replaced.
+        outputs: ``(option, path)`` pairs naming where each output goes and the
+            option that chose it (e.g. ``("--plot", "fit.png")``), used in the
+            error; a ``None`` path (an output not asked for) is skipped.
+
+    Returns:
+        The paths as :class:`~pathlib.Path`, in order (``None`` kept).
 
     Raises:
-        AmheError: the file exists and ``force`` is not set, or its folder does not exist.
+        AmheError: a file exists and ``force`` is not set ("… already exists:
+            pass --force to overwrite it, or choose another --plot"), a path is
+            a folder, its folder does not exist, or two outputs share one path.
     """
-    name = Path(log.rstrip("/")).name
+    paths: list[Path | None] = []
+    seen: dict[Path, str] = {}
+    for flag, out in outputs:
+        if out is None:
+            paths.append(None)
+            continue
+        path = Path(out)
+        if path.is_dir():
+            raise AmheError(f"{flag} {path}: is a folder, expected a file name")
+        if path.exists() and not force:
+            raise AmheError(f"{path} already exists: pass --force to overwrite it, or choose another {flag}")
+        if not path.parent.exists():
+            raise AmheError(f"{flag} {path}: folder {path.parent} does not exist")
+        key = path.resolve()
+        if key in seen:
+            raise AmheError(f"{flag} {path}: the same file as {seen[key]}; expected a different name")
+        seen[key] = flag
+        paths.append(path)
+    return paths
+
+
+def default_output(out: str | None, log: str, suffix: str) -> Path:
+    """``out``, or ``<log stem><suffix>`` in the working directory (no checks: see :func:`check_outputs`)."""
+    if out:
+        return Path(out)
+    name = Path(str(log).rstrip("/")).name
     stem = Path(name).stem if Path(name).suffix in (".mcap", ".bag", ".db3", ".yaml") else name
-    path = Path(out) if out else Path.cwd() / (stem + suffix)
-    if path.exists() and not force:
-        raise AmheError(f"{path} already exists: pass --force to overwrite it, or choose another --out")
-    if not path.parent.exists():
-        raise AmheError(f"--out {path}: folder {path.parent} does not exist")
-    return path
+    return Path.cwd() / (stem + suffix)
 
 
-def progress_bar(total: float, desc: str, quiet: bool, counter: str = "{n_fmt}/{total_fmt} gen"):
-    """A progress bar on stderr (off with --quiet/--json, and when stderr is not a terminal)."""
+def output_path(out: str | None, log: str, suffix: str, force: bool, flag: str = "--out") -> Path:
+    """Where an output goes: ``out``, or ``<log stem><suffix>`` in the working directory, checked.
+
+    Raises:
+        AmheError: as :func:`check_outputs` (exists without ``force``, no such folder).
+    """
+    return check_outputs(force, (flag, default_output(out, log, suffix)))[0]
+
+
+class LineProgress:
+    """Progress as plain lines on a stream that is not a terminal (a log file, a CI job, a pipe).
+
+    The subset of ``tqdm``'s interface the subcommands use (``n``, ``update``,
+    ``set_postfix_str``, ``close``): a line ``desc: 12/40 gen, 15 s elapsed, J=…``
+    at most every ``interval`` seconds, and a last one on :meth:`close` once any
+    was printed.
+    """
+
+    def __init__(self, total: float, desc: str, unit: str = "", fmt_n: str = "{:g}",
+                 interval: float = 5.0, file=None):
+        import time
+        self._clock = time.monotonic
+        self.total, self.desc, self.unit, self.fmt_n, self.interval = total, desc, unit, fmt_n, interval
+        self.file = file if file is not None else sys.stderr
+        self.n = 0.0
+        self.postfix = ""
+        self.start = self._last = self._clock()
+        self.printed = 0
+
+    def _line(self) -> str:
+        done = f"{self.fmt_n.format(self.n)}/{self.fmt_n.format(self.total)}{self.unit}"
+        return (f"{self.desc}: {done}, {self._clock() - self.start:.0f} s elapsed"
+                + (f", {self.postfix}" if self.postfix else ""))
+
+    def update(self, k: float = 1) -> None:
+        """Advance by ``k``; print a line when ``interval`` seconds passed since the last."""
+        self.n += k
+        now = self._clock()
+        if now - self._last >= self.interval:
+            self._last = now
+            self.printed += 1
+            print(self._line(), file=self.file, flush=True)
+
+    def set_postfix_str(self, text: str) -> None:
+        """Text appended to each line (e.g. ``J=1.23``)."""
+        self.postfix = text
+
+    def close(self) -> None:
+        """Print the final count, if any line was printed before."""
+        if self.printed:
+            print(self._line() + " (done)", file=self.file, flush=True)
+            self.printed = 0
+
+
+class _Silent:
+    """A progress bar that shows nothing (``--quiet``/``--json``)."""
+
+    def __init__(self):
+        self.n = 0.0
+
+    def update(self, k: float = 1) -> None:
+        self.n += k
+
+    def set_postfix_str(self, text: str) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def progress_bar(total: float, desc: str, quiet: bool, counter: str = "{n_fmt}/{total_fmt} gen",
+                 interval: float = 5.0):
+    """Progress on stderr: a tqdm bar on a terminal, a plain line every ``interval`` s otherwise.
+
+    Args:
+        total: the count or seconds at completion.
+        desc: what is running (``identify``, ``t1 adaptive``).
+        quiet: show nothing (``--quiet``, ``--json``).
+        counter: tqdm's counter format; its unit word (``gen``, ``runs``,
+            ``s of log``) is reused in the plain lines.
+        interval: seconds between plain lines (not a terminal).
+
+    Returns:
+        An object with ``n``, ``update(k)``, ``set_postfix_str(text)`` and ``close()``.
+    """
+    if quiet:
+        return _Silent()
+    if not (hasattr(sys.stderr, "isatty") and sys.stderr.isatty()):
+        unit = counter.rsplit("}", 1)[-1]
+        fmt_n = "{:.1f}" if ":.1f" in counter or ":.0f" in counter else "{:g}"
+        return LineProgress(total, desc, unit=unit, fmt_n=fmt_n, interval=interval)
     from tqdm import tqdm
-    return tqdm(total=total, desc=desc, file=sys.stderr, disable=True if quiet else None, leave=False,
+    return tqdm(total=total, desc=desc, file=sys.stderr, leave=False,
                 bar_format="{desc}: " + counter + " |{bar}| {elapsed} {postfix}")
 
 
@@ -135,32 +279,57 @@ def print_summary(result: IdentifyResult, truth: dict | None = None) -> None:
     for r in rows:
         click.echo("  ".join(str(c).ljust(w) for c, w in zip(r, widths)))
     c = s["cost"]
+    rms = c["residual_rms"]
+    if not result.converged:
+        verdict = "not judged: CMA-ES had not converged"
+    elif rms < 3:
+        verdict = "consistent with the W_x noise levels"
+    else:
+        verdict = "LARGER than the W_x noise levels: the model may not match the log"
     click.echo(f"\ncost J: prior {c['prior']:.4g} -> estimate {c['estimate']:.4g}; residual rms per step "
-               f"{c['residual_rms']:.3g} ({'consistent with' if c['residual_rms'] < 3 else 'LARGER than'} the "
-               f"W_x noise levels{'' if c['residual_rms'] < 3 else ': the model may not match the log'})")
+               f"{rms:.3g} ({verdict})")
     corr = np.array(s["correlation"])
     labels = s["labels"]
     if "box_mass" in labels and "box_friction" in labels:
         click.echo(f"mass-friction correlation {corr[labels.index('box_mass'), labels.index('box_friction')]:+.2f}")
-    click.echo(f"{s['clips']} clips, {s['generations']} generations, {s['evaluations']} candidates, "
-               f"{s['wall_time_s']:.1f} s")
+    click.echo(f"{s['clips']} clips, {s['generations']} generations"
+               f"{'' if result.converged else ' (stopped by --generations, not converged)'}, "
+               f"{s['evaluations']} candidates, {s['wall_time_s']:.1f} s")
 
 
-def run_identify(problem: Problem, settings: IdentifySettings, quiet: bool, threads: int | None) -> IdentifyResult:
-    """:func:`identify` with a progress bar on stderr."""
-    bar = progress_bar(settings.max_gen, "identify", quiet)
+def not_converged_warning(result: IdentifyResult) -> str | None:
+    """The warning for an identification the generation limit stopped before CMA-ES converged, else None."""
+    if result.converged:
+        return None
+    return (f"CMA-ES stopped at the generation limit ({result.settings.max_gen}) before it converged: "
+            "the estimate may still be moving and its residual is not judged; raise --generations")
+
+
+def run_identify(problem: Problem, settings: IdentifySettings, quiet: bool, threads: int | None,
+                 desc: str = "identify") -> IdentifyResult:
+    """:func:`identify` with progress on stderr, and a warning line (stderr, also with --json)
+    when ``--generations`` stopped it before CMA-ES converged."""
+    bar = progress_bar(settings.max_gen, desc, quiet)
     try:
         def tick(gen, best):
             bar.update(gen - bar.n)
             bar.set_postfix_str(f"J={best:.4g}")
-        return identify(problem.traj, problem.scene, problem.space, settings, progress=tick, nthread=threads)
+        result = identify(problem.traj, problem.scene, problem.space, settings, progress=tick, nthread=threads)
     finally:
         bar.close()
+    text = not_converged_warning(result)
+    if text:
+        click.echo(f"amhe: warning: {text}", err=True)
+    return result
 
 
 def save_outputs(problem: Problem, result: IdentifyResult, command: str, log: str, out_path: Path, force: bool,
                  plot_path: Path | None, threads: int | None, truth: dict | None = None) -> None:
-    """Write the belief YAML (and the --plot PNG) of an identification."""
+    """Write the belief YAML (and the --plot PNG) of an identification.
+
+    ``truth`` (name -> value, when known) goes into the belief's provenance and onto the plot.
+    Both paths were claimed by :func:`check_outputs` before the work started.
+    """
     belief = belief_from_result(result, problem, command, log)
     if truth is not None:
         belief.provenance["truth"] = truth
@@ -169,7 +338,7 @@ def save_outputs(problem: Problem, result: IdentifyResult, command: str, log: st
         from amhe_cli.estimation.cost import RolloutCost
         from amhe_cli.cli.plot import plot_identify
         with RolloutCost(problem.scene, problem.space, result.clips, nthread=threads) as cost:
-            plot_identify(plot_path, result, cost.rollout, problem.traj)
+            plot_identify(plot_path, result, cost.rollout, problem.traj, truth=truth)
 
 
 def parse_truth(pairs: tuple[str, ...]) -> dict:

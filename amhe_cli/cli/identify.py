@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from amhe_cli.cli.common import (identify_options, log_options, make_settings, output_path,
+from amhe_cli.cli.common import (check_outputs, default_output, identify_options, log_options, make_settings,
                                  parse_smooth, print_summary, run_identify, save_outputs)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_size, parse_topics
@@ -18,17 +18,20 @@ from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_si
 @identify_options
 @click.option("--t-range", default=None, metavar="T0,T1", help="Use only this part of the log [s].")
 @click.option("--out", default=None, type=click.Path(), help="Belief YAML to write (default: <log stem>.belief.yaml).")
-@click.option("--force", is_flag=True, help="Overwrite an existing --out file.")
+@click.option("--force", is_flag=True, help="Overwrite existing output files (--out, --plot).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the results and nothing else.")
-@click.option("--plot", type=click.Path(), default=None, help="Write a PNG: cost over generations, recorded vs predicted box.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.option("--plot", type=click.Path(), default=None,
+              help="Write a PNG: cost over generations, each parameter's path to its estimate ± σ, "
+                   "recorded vs predicted box velocity and position error over the clips.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips, horizon, popsize, generations,
                  prior_weight, t_range, seed, threads, out, force, as_json, plot, quiet):
     """Identify box mass, inertia and box-floor friction from LOG (SPI-style CMA-ES).
 
-    With no LOG, runs on the bundled example log.
+    With no LOG, runs on the bundled example log. Every output (--out, --plot)
+    is refused if it exists, unless --force, before any work starts.
     """
-    from amhe_cli.cli.plot import check_plot_path
+    from amhe_cli.cli.plot import check_png_name
     if log is None:
         logs = example_logs()
         if not logs:
@@ -38,14 +41,18 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
             click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
     settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range)
     smooth = parse_smooth(smooth)
-    out_path = output_path(out, log, ".belief.yaml", force)
-    plot_path = check_plot_path(plot)
+    out_path, plot_path = check_outputs(force, ("--out", default_output(out, log, ".belief.yaml")),
+                                        ("--plot", check_png_name(plot)))
     problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
                            box_size=parse_box_size(box_size), smooth=smooth)
+    from amhe_cli.io.truth import metadata_truth
+    truth = metadata_truth(problem.traj)
     result = run_identify(problem, settings, quiet or as_json, threads)
-    save_outputs(problem, result, "identify", log, out_path, force, plot_path, threads)
+    save_outputs(problem, result, "identify", log, out_path, force, plot_path, threads, truth=truth)
     if as_json:
         s = result.summary()
+        if truth is not None:
+            s["truth"] = {k: truth[k] for k in result.space.free if k in truth}
         s["belief"] = str(out_path)
         if plot_path is not None:
             s["plot"] = str(plot_path)
@@ -53,6 +60,5 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         return
     click.echo(f"log {log}: {len(problem.traj) * problem.traj.dt:.1f} s, box floor z={problem.scene.config.floor_height:+.3f} m, "
                f"robot floor z={problem.scene.config.robot_floor_height:+.3f} m")
-    from amhe_cli.io.truth import metadata_truth
-    print_summary(result, truth=metadata_truth(problem.traj))
+    print_summary(result, truth=truth)
     click.echo(f"belief written to {out_path}" + (f"; plot to {plot_path}" if plot_path else ""))

@@ -8,17 +8,26 @@ from csv import writer as csv_writer
 import click
 import numpy as np
 
-from amhe_cli.cli.common import log_options, output_path, parse_smooth, progress_bar
+from amhe_cli.cli.common import (check_outputs, default_output, log_options, nominal_prior_text, parse_smooth,
+                                 progress_bar)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.problem import load_problem, parse_box_size, parse_topics
 from amhe_cli.model.params import PARAMETERS, parse_names
+
+#: What ``tracking error vs truth`` is (:func:`~amhe_cli.estimation.replay.tracking_error`), printed beside it.
+TRACKING_ERROR_TEXT = ("tracking error = RMS of (estimate − truth) at each update, over the updates from the first "
+                       "informative one on (the earlier ones, windows without box motion, hold the prior); "
+                       "box_mass in % of the truth, box_friction absolute")
+#: The unit of each tracking error.
+TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (friction coefficient)"}
 
 @click.command("mhe-replay")
 @click.argument("log", type=click.Path())
 @log_options
 @click.option("--params", default="box_mass,box_friction", show_default=True, metavar="NAMES",
               help=f"Free parameters, from: {', '.join(PARAMETERS)} (an unfree inertia follows the mass).")
-@click.option("--prior", type=click.Path(), default=None, help="Belief YAML (from identify or probe) to start from.")
+@click.option("--prior", type=click.Path(), default=None,
+              help="Belief YAML (from identify or probe) to start from. Default: " + nominal_prior_text() + ".")
 @click.option("--window", default=1.0, show_default=True, type=float, help="Window H [s].")
 @click.option("--every", default=0.5, show_default=True, type=float, help="Update period Δt_update [s].")
 @click.option("--iters", default=3, show_default=True, type=int, help="Iterations L_MHE per update.")
@@ -34,31 +43,44 @@ from amhe_cli.model.params import PARAMETERS, parse_names
 @click.option("--sweep", default=None, metavar="NAME=V1,V2,…",
               help="Ablation: rerun for each value of one setting (window, every, iters, samples, alpha, clip, max_steps).")
 @click.option("--seeds", default=1, show_default=True, type=click.IntRange(1, 1000), help="Seeds per sweep value.")
-@click.option("--seed", default=0, show_default=True, type=int)
-@click.option("--threads", default=None, type=click.IntRange(1, 1024))
+@click.option("--seed", default=0, show_default=True, type=int,
+              help="Seed of the estimator's candidate sampling (a sweep's k-th seed is SEED+k).")
+@click.option("--threads", default=None, type=click.IntRange(1, 1024),
+              help="Rollout threads (default: all CPUs).")
 @click.option("--out", default=None, type=click.Path(), help="Estimates CSV (default: <log stem>.mhe.csv).")
 @click.option("--mcap", "mcap_out", default=None, type=click.Path(),
               help="Also write the estimates to this MCAP on /amhe/estimate (Float64MultiArray).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object and nothing else.")
-@click.option("--plot", type=click.Path(), default=None, help="PNG: each parameter over time, ±1σ, truth.")
-@click.option("--quiet", "-q", is_flag=True)
+@click.option("--plot", type=click.Path(), default=None,
+              help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
                    clip, max_steps, realtime, truth_csv, sweep, seeds, seed, threads, out, mcap_out, force, as_json,
                    plot, quiet):
-    """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4)."""
+    """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
+
+    Outputs (--out CSV, --mcap, --plot) are refused if they exist, unless
+    --force, before any work starts. With a ground truth (a truth CSV beside
+    the log, or --truth) it prints the tracking error: the RMS of estimate −
+    truth over the updates from the first informative one on; box_mass in %
+    of the truth, box_friction absolute.
+    """
     from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
-    from amhe_cli.cli.plot import check_plot_path, plot_estimates
+    from amhe_cli.cli.plot import check_png_name, plot_estimates
     from amhe_cli.estimation.replay import estimates_table, replay, tracking_error, truth_series
     settings = MHESettings(window=window, every=every, iters=iters, samples=samples, alpha=alpha,
                            clip=clip if clip > 0 else None, max_steps=max_steps, seed=seed)
     settings.check()
     free = parse_names(params)
     smooth = parse_smooth(smooth)
-    plot_path = check_plot_path(plot)
-    if sweep is None:
-        out_path = output_path(out, log, ".mhe.csv", force)
-        mcap_path = output_path(mcap_out, log, ".mhe.mcap", force) if mcap_out else None
+    if sweep is not None:
+        if out or mcap_out or plot:
+            raise AmheError("--sweep prints a table and writes no file: drop --out, --mcap and --plot")
+        out_path = mcap_path = plot_path = None
+    else:
+        out_path, mcap_path, plot_path = check_outputs(
+            force, ("--out", default_output(out, log, ".mhe.csv")), ("--mcap", mcap_out), ("--plot", check_png_name(plot)))
     problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
                            box_size=parse_box_size(box_size), smooth=smooth)
     if settings.window > problem.traj.duration:
@@ -104,9 +126,10 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         if as_json:
             click.echo(json.dumps({"sweep": name, "seeds": seeds, "rows": rows}))
             return
-        click.echo(f"sweep of {name} over {seeds} seed(s); tracking error vs truth "
-                   f"({'box_mass RMS %, box_friction RMS' if truth else 'no truth in this log'}), compute per update")
-        click.echo(f"{name:>10}  {'mass err %':>16}  {'friction err':>18}  {'update s':>14}")
+        click.echo(f"sweep of {name} over {seeds} seed(s), mean ± std over the seeds; "
+                   + (TRACKING_ERROR_TEXT if truth else "no truth for this log: no tracking error")
+                   + "; compute time per update [s]")
+        click.echo(f"{name:>10}  {'mass err [%]':>16}  {'friction err [-]':>18}  {'update [s]':>14}")
         for r in rows:
             m = r.get("box_mass")
             f = r.get("box_friction")
@@ -140,6 +163,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         "lag_s": {"mean": float(lags.mean()) if len(lags) else 0.0, "max": float(lags.max()) if len(lags) else 0.0},
         "tracking_error": errors, "csv": str(out_path),
     }
+    if errors:
+        summary["tracking_error_units"] = {k: TRACKING_ERROR_UNITS[k] for k in errors}
+        summary["tracking_error_definition"] = TRACKING_ERROR_TEXT
     if mcap_path is not None:
         summary["mcap"] = str(mcap_path)
     if plot_path is not None:
@@ -153,8 +179,10 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         if not h.endswith("_std"):
             click.echo(f"  final {h} = {v:.4g} ± {summary['final'][h + '_std']:.2g}")
     if errors:
-        click.echo("tracking error vs truth: " + ", ".join(
+        n_seen = int((np.cumsum(~skipped) > 0).sum())
+        click.echo(f"tracking error vs truth over {n_seen} updates: " + ", ".join(
             f"{k} {v:.2f} %" if k == "box_mass" else f"{k} {v:.4f}" for k, v in errors.items()))
+        click.echo(f"  ({TRACKING_ERROR_TEXT})")
     if realtime:
         click.echo(f"realtime factor {res.realtime_factor:.2f}; {res.behind} update(s) fell behind; "
                    f"lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")

@@ -6,25 +6,29 @@ import json
 import signal
 import sys
 
-import click
+from pathlib import Path
 
-from amhe_cli.cli.common import fmt, load_belief, output_path, parse_xy, progress_bar
+import click
+import numpy as np
+
+from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, fmt, load_belief, parse_xy, progress_bar
 from amhe_cli.control.closed_loop import MODES
 from amhe_cli.errors import AmheError
 
 
 @click.command("run")
-@click.option("--task", "task_name", default="t1", show_default=True,
-              help="Task t1..t5 (see the README's task table).")
+@click.option("--task", "task_name", default="t1", show_default=True, help=TASK_HELP)
 @click.option("--target", type=click.Choice(["sim", "go1"]), default="sim", show_default=True,
               help="Plant: the MuJoCo sim, or a Go1 over its low-level UDP link (a real robot or `amhe emulate go1`).")
 @click.option("--mode", type=click.Choice(MODES), default="adaptive", show_default=True,
               help="Planner's parameters: the truth, a fixed belief, or the belief re-estimated online by the MHE.")
 @click.option("--belief", default=None, type=click.Path(),
-              help="Starting belief YAML (default: sim: probe in sim first; go1: the nominal prior).")
+              help="Starting belief YAML (default: sim: probe in the sim first, about a minute on 2 cores, saved "
+                   "as <out stem>.probe.belief.yaml for the next run's --belief; go1: the nominal prior).")
 @click.option("--config", default=None, type=click.Path(),
               help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task, safety overrides.")
-@click.option("--seed", default=0, show_default=True, type=int)
+@click.option("--seed", default=0, show_default=True, type=int,
+              help="Seed of the planner's sampling, the MHE and the sim probe.")
 @click.option("--duration", default=None, type=float, help="Time limit [s] (default: the task's).")
 @click.option("--realtime", is_flag=True, help="Run the sim plant on the wall clock (default: lock-step; go1 always is).")
 @click.option("--robot", default="192.168.123.10:8007", show_default=True, metavar="HOST:PORT",
@@ -43,12 +47,14 @@ from amhe_cli.errors import AmheError
               help="go1: --arm sends servo commands after the ramp to the stand; --dry-run (the default) sends "
                    "damping packets only and records what it would have sent.")
 @click.option("--out", default=None, type=click.Path(), help="MCAP to record (default: run_<task>_<mode>_s<seed>.mcap).")
-@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--force", is_flag=True,
+              help="Overwrite existing output files (--out, its .truth.csv and .probe.belief.yaml, --plot).")
 @click.option("--plot", type=click.Path(), default=None, help="PNG: box path vs goal, speed tracking, estimates vs truth.")
 @click.option("--json", "as_json", is_flag=True,
-              help="Print only {success, e_g, J, t_exec, rmse[, failure]} as JSON.")
+              help="Print only {success, e_g, J, t_exec, rmse[, reason][, failure][, probe_belief]} as JSON; "
+                   "reason says why a run failed, probe_belief where the probe's belief was saved.")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Planner rollout threads (default: all CPUs).")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
             box_body, goal, arm, out, force, plot, as_json, threads, quiet):
     """Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1.
@@ -57,24 +63,37 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     amhe run --task t4 --mode adaptive                       the sim plant, lock-step
     amhe run --task t1 --target go1 --robot 127.0.0.1:8007 --mocap udp:9870 --arm
                                                              a Go1 (or `amhe emulate go1`)
+    A sim run without --belief first probes (the lunge probe and identify,
+    about a minute on 2 cores) and saves that belief beside the recording.
+    Every output is refused if it exists, unless --force, before any work.
     A Go1 run waits for the robot's state stream and both poses, ramps to the
     stand over 2 s, and only then plans; any failure (safety trip, lost link,
     stale state, Ctrl-C, an exception) ends in damping, the recording is kept
     and the exit status is non-zero.
     """
-    from amhe_cli.cli.plot import check_plot_path, plot_run
+    from amhe_cli.cli.plot import plot_run
     from amhe_cli.control.closed_loop import run_task, save_run
     from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
 
     cfg = load_config(config)
     task, settings = run_settings(task_name, mode, cfg, seed=seed, realtime=realtime or target == "go1",
                                   threads=threads, duration=duration)
-    out_path = output_path(out or f"run_{task.name}_{mode}_s{seed}.mcap", f"run_{task.name}", ".mcap", force)
-    plot_path = check_plot_path(plot)
+    from amhe_cli.cli.plot import check_png_name
+    out_path = Path(out or f"run_{task.name}_{mode}_s{seed}.mcap")
+    stem = out_path.name.split(".mcap")[0]
+    probing = target == "sim" and belief is None and mode != "true"
+    out_path, truth_path, probe_path, plot_path = check_outputs(
+        force, ("--out", out_path),
+        ("--out", out_path.with_name(stem + ".truth.csv") if target == "sim" else None),  # save_run's truth CSV
+        ("--out", out_path.with_name(stem + ".probe.belief.yaml") if probing else None),
+        ("--plot", check_png_name(plot)))
     goal_xy = parse_xy(goal, "--goal") if goal is not None else None
     if target == "sim" and goal is not None:
         raise AmheError("--goal is for --target go1; the sim tasks have their own goals (use --config task: goal)")
     start = load_belief(belief)
+    talk = not (quiet or as_json)
+    if task.name == "t5":
+        click.echo(f"amhe: warning: {T5_WARNING}", err=True)
     plant = None
     if target == "go1":
         if mode == "true":
@@ -82,17 +101,21 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
                             "use --mode adaptive or baseline")
         plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
                                         goal_xy, arm, quiet or as_json)
-    elif start is None and mode != "true":
-        if not (quiet or as_json):
-            click.echo("no --belief: probing in the sim with the task's starting box first", err=True)
+    elif probing:
+        if talk:
+            click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the lunge "
+                       "probe, then identify (up to 40 CMA-ES generations, about a minute on 2 cores); then the "
+                       f"{task.name} run (up to {task.duration:g} s of sim time)", err=True)
         bar = progress_bar(40, "probe+identify", quiet or as_json)
         try:
             start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))
         finally:
             bar.close()
-        if not (quiet or as_json):
+        start.save(probe_path, force=force)
+        if talk:
             click.echo("starting belief: " + ", ".join(f"{k} {fmt(v)}" for k, v in start.values.items()
-                                                      if k in ("box_mass", "box_friction")), err=True)
+                                                      if k in ("box_mass", "box_friction"))
+                       + f"; saved to {probe_path} (next time: --belief {probe_path})", err=True)
     bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
     try:
         result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant)
@@ -104,19 +127,59 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
         plot_run(plot_path, result, task)
     for m in result.warnings:
         click.echo(f"amhe: warning: {m}", err=True)
+    reason = failure_reason(result, task)
     if as_json:
-        click.echo(json.dumps(result.metrics()))
+        metrics = result.metrics()
+        if reason is not None:
+            metrics["reason"] = reason
+        if probe_path is not None:
+            metrics["probe_belief"] = str(probe_path)
+        click.echo(json.dumps(metrics))
     else:
         click.echo(f"{task.name} {mode} seed {seed}: {'success' if result.success else 'failure'}"
-                   f"{' (the robot fell)' if result.fell else ''}")
+                   + (f": {reason}" if reason else ""))
         click.echo(f"  e_g {result.e_g:.3f} m   J {result.J:.3f}   t_exec {result.t_exec:.1f} s   "
                    f"speed RMSE {result.rmse:.3f} m/s   control {result.control_hz:.1f} Hz")
-        click.echo(f"recorded {out_path}" + (f", plot {plot_path}" if plot_path else ""))
+        click.echo(f"recorded {out_path}" + (f", {truth_path.name}" if truth_path is not None and truth_path.exists()
+                                             else "")
+                   + (f", probe belief {probe_path}" if probe_path is not None else "")
+                   + (f", plot {plot_path}" if plot_path else ""))
     if result.failure is not None:
         if result.failure.startswith("interrupted"):
             click.echo(f"amhe: {result.failure}; recorded {out_path}", err=True)
             sys.exit(130)
         raise AmheError(f"run stopped: {result.failure} (recorded {out_path})")
+
+
+def failure_reason(result, task) -> str | None:
+    """Why a run did not succeed, in one line; None for a success.
+
+    In order: the plant's own failure text (``RunResult.failure``: a safety
+    trip, a lost link, Ctrl-C); "robot fell at t = 12.3 s" (the first recorded
+    sample with the base below ``task.fall_height``); "time limit (40 s)
+    reached with the box 0.70 m from the goal (success: within 0.20 m)"; or,
+    for a run that ended early without either, where the box was left.
+
+    Args:
+        result: :class:`~amhe_cli.control.closed_loop.RunResult`.
+        task: the :class:`~amhe_cli.control.tasks.Task` it ran (its ``duration``,
+            ``fall_height`` and ``success_radius``).
+    """
+    if result.success:
+        return None
+    if result.failure is not None:
+        return result.failure
+    traj = result.traj
+    if result.fell:
+        t_fall = result.t_exec
+        if traj is not None and len(traj):
+            low = np.flatnonzero(traj.base_pos[:, 2] < task.fall_height)
+            t_fall = float(traj.t[low[0]] if len(low) else traj.t[-1])
+        return f"robot fell at t = {t_fall:.1f} s"
+    where = f"the box {result.e_g:.2f} m from the goal (success: within {task.success_radius:.2f} m)"
+    if result.t_exec >= task.duration - 0.1:
+        return f"time limit ({task.duration:g} s) reached with {where}"
+    return f"run ended at t = {result.t_exec:.1f} s with {where}"
 
 
 def _sigterm_as_interrupt(signum, frame):

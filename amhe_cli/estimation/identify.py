@@ -40,7 +40,7 @@ class IdentifySettings:
         n_clips: number of clips ``N_c``. 32: on the 5 kg example log, 8 seeds all
             landed within 3 % of the mass; with 24 one seed missed by 10.6 %.
         horizon: (min, max) clip horizon [s], drawn uniformly. 0.1–0.2 s: longer
-            clips let the optimum slide along the m·μ valley (DESIGN.md §4b).
+            clips let the optimum slide along the m·μ valley (docs/reference.md#identification).
         popsize: CMA-ES population (candidates per generation, ``B``).
         max_gen: generation limit.
         sigma0: initial CMA-ES step in prior-σ units.
@@ -82,6 +82,12 @@ class IdentifyResult:
         clips: the clips used.
         wall_time: seconds.
         evaluations: candidate evaluations.
+        converged: CMA-ES stopped on one of its own convergence criteria
+            (``tolx``, ``tolfun``, a flat fitness, ...); False when only the
+            generation limit ``max_gen`` stopped it, so the estimate may still
+            be moving and ``residual_rms`` says nothing about model fit.
+        stop: the CMA-ES termination conditions that fired, name -> value
+            (e.g. ``{"maxiter": 40}`` or ``{"tolx": 0.003}``).
     """
 
     space: ParameterSpace
@@ -95,6 +101,8 @@ class IdentifyResult:
     settings: IdentifySettings
     wall_time: float
     evaluations: int
+    converged: bool = True
+    stop: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-ready ``{"estimate", "std", "prior", ...}`` (vectors as lists)."""
@@ -116,6 +124,8 @@ class IdentifyResult:
             "generations": len(self.history),
             "evaluations": self.evaluations,
             "wall_time_s": self.wall_time,
+            "converged": bool(self.converged),
+            "stop": {k: (float(v) if isinstance(v, (int, float, np.number)) else str(v)) for k, v in self.stop.items()},
         }
 
 
@@ -167,6 +177,9 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
                             "sigma": float(es.sigma), "mean": (p0 + np.asarray(es.mean) * s0).tolist()})
             if progress:
                 progress(len(history), best_j)
+        stop = {str(k): v for k, v in dict(es.stop()).items()}
+        # converged: some criterion other than the generation limit fired
+        converged = any(k != "maxiter" for k in stop) or not stop
         # The cost is a broad valley with a rough floor (rocking contacts): read the valley with a
         # quadratic over the late generations rather than trusting one lucky sample.
         z_mean = np.asarray(es.mean, dtype=float)
@@ -193,6 +206,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
         settings=settings, wall_time=time.perf_counter() - t0, evaluations=evals,
+        converged=converged, stop=stop,
     )
 
 

@@ -50,6 +50,8 @@ def _detect_format(path: Path) -> str:
             f"cannot read '{path}' as a log: the folder has no metadata.yaml, so it is not a "
             f"rosbag2 folder; {_NOT_A_LOG}"
         )
+    if path.stat().st_size == 0:
+        raise AmheError(f"log '{path}' is empty (0 bytes): {_NOT_A_LOG}")
     with path.open("rb") as f:
         head = f.read(16)
     if head.startswith(b"\x89MCAP"):

@@ -1,0 +1,264 @@
+"""A new user's first hour (issue 12): outputs never overwritten, commands that explain themselves.
+
+Fast: the CLI runs in-process, and every refusal is checked with a bad LOG or
+settings that would take long, so a refusal that came after the work would
+fail (or time out) the test.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import click
+import numpy as np
+import pytest
+
+from amhe_cli.estimation.problem import example_logs
+
+FAST_ID = ["--clips", "4", "--popsize", "4", "--params", "box_mass,box_friction", "-q"]
+
+
+def amhe(capsys, *args):
+    """Run the CLI in-process: (exit code, stdout, stderr)."""
+    from amhe_cli.cli import main
+    try:
+        main([str(a) for a in args])
+        code = 0
+    except SystemExit as e:
+        code = e.code
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def one_line_error(result, *words) -> str:
+    code, _, err = result
+    assert code == 2, err
+    assert "Traceback" not in err
+    lines = [ln for ln in err.strip().splitlines() if ln.startswith("amhe: error:")]
+    assert len(lines) == 1, err
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def example():
+    return example_logs()[0]
+
+
+# -- 1. one overwrite rule, checked before any work --------------------------------------------
+
+def _existing(tmp_path, name, text="keep me\n"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("case", [
+    # (subcommand args with {x} the existing file, {missing} a log that does not exist)
+    ("identify", "{missing}", "--plot", "{x}"),
+    ("identify", "{missing}", "--out", "{x}"),
+    ("mhe-replay", "{missing}", "--plot", "{x}"),
+    ("mhe-replay", "{missing}", "--out", "{x}"),
+    ("mhe-replay", "{missing}", "--mcap", "{x}"),
+    ("probe", "--target", "sim", "--record", "{x}"),
+    ("probe", "--target", "sim", "--record", "{new}", "--plot", "{x}"),
+    ("probe", "--target", "sim", "--record", "{new}", "--out", "{x}"),
+    ("run", "--mode", "true", "--out", "{new}", "--plot", "{x}"),
+    ("run", "--mode", "true", "--out", "{x}"),
+    ("evaluate", "--modes", "true", "--out", "{x}"),
+], ids=lambda c: " ".join(c))
+def test_existing_output_is_refused_before_any_work(capsys, tmp_path, case):
+    suffix = ".png" if "--plot" in case else ".mcap" if ("--record" in case or "--mcap" in case
+                                                          or case[0] == "run") else ".out"
+    x = _existing(tmp_path, "x" + suffix)
+    new = tmp_path / "new.mcap"
+    args = [a.format(x=x, missing=tmp_path / "missing.mcap", new=new) for a in case]
+    t0 = time.perf_counter()
+    line = one_line_error(amhe(capsys, *args), str(x), "already exists", "pass --force")
+    assert time.perf_counter() - t0 < 5, "the refusal came after work"
+    assert "missing.mcap" not in line  # the output check came before reading the log
+    assert x.read_text() == "keep me\n" and not new.exists()
+
+
+def test_run_refuses_its_truth_csv_and_probe_belief_before_probing(capsys, tmp_path):
+    out = tmp_path / "r.mcap"
+    csv = _existing(tmp_path, "r.truth.csv")
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--out", out), str(csv), "pass --force")
+    csv.unlink()
+    belief = _existing(tmp_path, "r.probe.belief.yaml")
+    t0 = time.perf_counter()  # adaptive without --belief would probe for a minute first
+    one_line_error(amhe(capsys, "run", "--out", out), str(belief), "pass --force")
+    assert time.perf_counter() - t0 < 5
+    assert not out.exists() and belief.read_text() == "keep me\n"
+
+
+def test_two_outputs_cannot_share_a_file(capsys, tmp_path):
+    one_line_error(amhe(capsys, "identify", tmp_path / "missing.mcap", "--out", tmp_path / "a.png",
+                        "--plot", tmp_path / "a.png"), "--plot", "--out")
+
+
+def test_check_outputs_rule():
+    from amhe_cli.cli.common import check_outputs
+    from amhe_cli.errors import AmheError
+    with pytest.raises(AmheError, match="folder .* does not exist"):
+        check_outputs(False, ("--out", "/no/such/folder/x.csv"))
+    assert check_outputs(False, ("--plot", None), ("--out", "fresh-name.csv")) == [None, Path("fresh-name.csv")]
+
+
+# -- 5. convergence, and --force replacing a plot ---------------------------------------------
+
+def test_identify_stopped_by_generations_warns_and_says_not_converged(capsys, tmp_path, example):
+    plot = _existing(tmp_path, "fit.png")
+    code, out, err = amhe(capsys, "identify", example, *FAST_ID, "--generations", "2", "--json",
+                          "--out", tmp_path / "b.yaml", "--plot", plot, "--force")
+    assert code == 0, err
+    res = json.loads(out)
+    assert res["converged"] is False and res["generations"] == 2 and "maxiter" in res["stop"]
+    assert res["truth"] == {"box_mass": pytest.approx(2.5), "box_friction": pytest.approx(0.3)}
+    warn = [ln for ln in err.splitlines() if ln.startswith("amhe: warning:")]
+    assert len(warn) == 1 and "generation limit (2)" in warn[0] and "--generations" in warn[0]
+    assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # --force replaced it
+    # the text says so too, and does not call the residual consistent with the noise
+    code, out, err = amhe(capsys, "identify", example, *FAST_ID, "--generations", "2",
+                          "--out", tmp_path / "b.yaml", "--force")
+    assert code == 0, err
+    assert "not converged" in out and "consistent with" not in out
+
+
+# -- 4. probe: several logs, units, the best-case note, a warning once, an empty file ---------
+
+def test_probe_takes_two_logs(capsys):
+    logs = example_logs()[:2]
+    args = ["probe", *logs, "--params", "box_mass,box_friction", "--clips", "4"]
+    code, out, err = amhe(capsys, *args, "--json")
+    assert code == 0, err
+    reps = json.loads(out)
+    assert isinstance(reps, list) and [Path(r["log"]["path"]).name for r in reps] == [p.name for p in logs]
+    assert reps[0]["parameters"]["box_mass"]["unit"] == "kg"
+    code, out, err = amhe(capsys, *args)
+    assert code == 0, err
+    assert out.count("identifiability from 4 clips") == 2 and out.count("best case") == 2
+    assert "best-case σ" in out and "unit" in out and " kg " in out
+
+
+def test_probe_truncated_log_warns_once(capsys, tmp_path, example):
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(example.read_bytes()[: int(example.stat().st_size * 0.7)])
+    code, out, err = amhe(capsys, "probe", cut, "--params", "box_mass", "--clips", "2")
+    assert code == 0, err
+    assert (out + err).count("is truncated or damaged") == 1
+    code, out, err = amhe(capsys, "probe", cut, "--params", "box_mass", "--clips", "2", "--json")
+    assert code == 0, err
+    assert err.count("is truncated or damaged") == 1 and json.loads(out)["log"]["warnings"]
+
+
+@pytest.mark.parametrize("cmd", ["identify", "probe", "mhe-replay"])
+def test_empty_file_is_called_empty(capsys, tmp_path, cmd):
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    extra = ["--out", tmp_path / "o.yaml"] if cmd != "probe" else []
+    one_line_error(amhe(capsys, cmd, empty, *extra), "empty.mcap", "is empty (0 bytes)")
+
+
+# -- 2. run: the failure reason, progress off a terminal --------------------------------------
+
+def test_run_failure_reason_in_json_and_printout(capsys, tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("planner: {samples: 8, horizon: 20}\n")
+    args = ["run", "--task", "t1", "--mode", "true", "--duration", "0.3", "--config", cfg, "--threads", "1",
+            "--force"]
+    code, out, err = amhe(capsys, *args, "--json", "--out", tmp_path / "a.mcap")
+    assert code == 0, err
+    m = json.loads(out)
+    assert m["success"] is False
+    assert m["reason"].startswith("time limit (0.3 s) reached with the box ")
+    assert f"{m['e_g']:.2f} m from the goal" in m["reason"]
+    code, out, err = amhe(capsys, *args, "--out", tmp_path / "b.mcap")
+    assert code == 0, err
+    assert "failure: time limit (0.3 s) reached with the box" in out
+
+
+def test_failure_reason_order():
+    from amhe_cli.cli.run import failure_reason
+    from amhe_cli.control.tasks import get_task
+    task = get_task("t1")
+    t = np.arange(0, 5, 0.002)
+    z = np.where(t < 3.21, 0.3, 0.1)
+    traj = type("T", (), {"t": t, "base_pos": np.stack([t, 0 * t, z], axis=1), "__len__": lambda s: len(t)})()
+    r = SimpleNamespace(success=False, failure=None, fell=True, t_exec=5.0, e_g=0.9, traj=traj)
+    assert failure_reason(r, task) == "robot fell at t = 3.2 s"
+    r.failure = "robot state stale for 40 ms: damping"
+    assert failure_reason(r, task) == r.failure
+    r = SimpleNamespace(success=False, failure=None, fell=False, t_exec=12.0, e_g=0.7, traj=traj)
+    assert failure_reason(r, task) == "run ended at t = 12.0 s with the box 0.70 m from the goal (success: within 0.20 m)"
+    r.t_exec = task.duration
+    assert failure_reason(r, task).startswith(f"time limit ({task.duration:g} s) reached with the box 0.70 m")
+    r.success = True
+    assert failure_reason(r, task) is None
+
+
+def test_progress_prints_lines_when_not_a_terminal(capsys):
+    from amhe_cli.cli.common import LineProgress, progress_bar
+    buf = io.StringIO()
+    bar = LineProgress(40, "probe+identify", unit=" gen", interval=0.0, file=buf)
+    bar.update(3)
+    bar.set_postfix_str("J=1.5")
+    bar.update(2)
+    bar.close()
+    lines = buf.getvalue().splitlines()
+    assert lines[0].startswith("probe+identify: 3/40 gen, ") and lines[1].endswith("J=1.5")
+    assert lines[-1].startswith("probe+identify: 5/40 gen") and lines[-1].endswith("(done)")
+    quiet = LineProgress(40, "x", interval=3600.0, file=buf)  # nothing before its interval, nothing at close
+    before = buf.getvalue()
+    quiet.update(40), quiet.close()
+    assert buf.getvalue() == before
+    # under pytest stderr is not a terminal: lines, not a bar; --quiet: nothing
+    assert isinstance(progress_bar(10, "run", False), LineProgress)
+    silent = progress_bar(10, "run", True)
+    silent.update(10), silent.close()
+    assert capsys.readouterr().err == ""
+
+
+# -- 3. and 6. help that points somewhere -----------------------------------------------------
+
+def _commands():
+    from amhe_cli.cli import cli
+    return {name: cli.commands[name] for name in ("identify", "probe", "mhe-replay", "run", "evaluate")}
+
+
+@pytest.mark.parametrize("name", ["identify", "probe", "mhe-replay", "run", "evaluate"])
+def test_every_option_has_help_and_no_outside_document(name):
+    cmd = _commands()[name]
+    for p in cmd.params:
+        if isinstance(p, click.Option):
+            assert p.help and p.help.strip(), f"{name} {p.opts} has no help"
+    ctx = click.Context(cmd, info_name=name)
+    text = cmd.get_help(ctx)
+    assert "DESIGN" not in text and "§6" not in text and "issue" not in text
+    if any("--prior" in p.opts for p in cmd.params):
+        assert "Default: the nominal box: mass 3.7 kg" in text and "μ 0.5" in text
+
+
+def test_task_help_marks_t5_experimental(capsys):
+    for name in ("run", "evaluate"):
+        opt = next(p for p in _commands()[name].params if "--task" in p.opts)
+        assert "t5" in opt.help and "experimental: does not reach its goal yet" in opt.help
+
+
+def test_mhe_replay_defines_its_tracking_error(capsys, tmp_path, example):
+    code, out, err = amhe(capsys, "mhe-replay", example, "--samples", "4", "--iters", "1", "--every", "1.0",
+                          "--threads", "1", "-q", "--out", tmp_path / "m.csv", "--plot", tmp_path / "m.png")
+    assert code == 0, err
+    line = next(ln for ln in out.splitlines() if ln.startswith("tracking error vs truth"))
+    assert "box_mass" in line and "%" in line
+    assert "RMS of (estimate − truth)" in out and "box_mass in % of the truth, box_friction absolute" in out
+    code, out, err = amhe(capsys, "mhe-replay", example, "--samples", "4", "--iters", "1", "--every", "1.0",
+                          "--threads", "1", "-q", "--json", "--out", tmp_path / "n.csv")
+    assert code == 0, err
+    s = json.loads(out)
+    assert s["tracking_error_units"]["box_mass"] == "% of truth" and "tracking_error_definition" in s
