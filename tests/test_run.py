@@ -478,6 +478,32 @@ def test_estimator_failure_never_stops_the_controller(monkeypatch):
     assert est_v[0, r.labels.index("box_mass")] == pytest.approx(5.0)
 
 
+def test_an_exception_in_the_loop_closes_the_plant_with_its_reason_and_keeps_the_recording(monkeypatch):
+    from amhe_cli.control.closed_loop import make_plant
+    from amhe_cli.control.planner import Planner
+
+    task = get_task("t1", duration=2.0)
+    settings = small_settings("true")
+    plant = make_plant(task, settings.kp, settings.kd, settings.planner.dt)
+    closed = []
+    monkeypatch.setattr(plant, "close", lambda reason=None: closed.append(reason))
+    calls = {"n": 0}
+    real_plan = Planner.plan
+
+    def flaky(self, *args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise ValueError("injected planner fault")
+        return real_plan(self, *args, **kwargs)
+
+    monkeypatch.setattr(Planner, "plan", flaky)
+    r = run_task(task, None, settings, plant=plant)
+    assert closed == ["ValueError in the closed loop: injected planner fault"]  # a robot plant damps on this
+    assert r.failure == closed[0] and not r.success
+    assert any("run stopped" in w for w in r.warnings)
+    assert len(r.traj) > 0 and r.traj.t[-1] == pytest.approx(4 * settings.cycle, abs=0.003)  # 4 cycles kept
+
+
 # -- the run command -----------------------------------------------------------------
 
 def amhe(capsys, *args):
@@ -541,8 +567,9 @@ def test_run_json_records_and_refuses_to_overwrite(capsys, tmp_path):
     lines = out.strip().splitlines()
     assert len(lines) == 1, out
     metrics = json.loads(lines[0])
-    assert set(metrics) == {"success", "e_g", "J", "t_exec", "rmse"}
-    assert isinstance(metrics["success"], bool)
+    assert set(metrics) == {"success", "e_g", "J", "t_exec", "rmse", "reason"}  # 0.4 s cannot reach the goal
+    assert isinstance(metrics["success"], bool) and not metrics["success"]
+    assert metrics["reason"].startswith("time limit (0.4 s) reached with the box")
     assert metrics["t_exec"] == pytest.approx(0.4, abs=0.01)
     assert mcap.is_file() and csv.is_file()
 
