@@ -83,9 +83,13 @@ class IdentifyResult:
         wall_time: seconds.
         evaluations: candidate evaluations.
         converged: CMA-ES stopped on one of its own convergence criteria
-            (``tolx``, ``tolfun``, a flat fitness, ...); False when only the
-            generation limit ``max_gen`` stopped it, so the estimate may still
-            be moving and ``residual_rms`` says nothing about model fit.
+            (``tolx``, ``tolfun``, a flat fitness, ...), or its search spread
+            per coordinate had shrunk below the estimate's σ from the data
+            (``stop["search_within_sigma"]``: more generations would move it by
+            less than its uncertainty); False when the generation limit
+            ``max_gen`` stopped a search still wider than that, so the estimate
+            may still be moving, its σ includes the search's spread and
+            ``residual_rms`` says nothing about model fit.
         stop: the CMA-ES termination conditions that fired, name -> value
             (e.g. ``{"maxiter": 40}`` or ``{"tolx": 0.003}``).
     """
@@ -178,7 +182,8 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             if progress:
                 progress(len(history), best_j)
         stop = {str(k): v for k, v in dict(es.stop()).items()}
-        # converged: some criterion other than the generation limit fired
+        # converged: some criterion other than the generation limit fired (or, below, the search
+        # narrowed within the data's own uncertainty)
         converged = any(k != "maxiter" for k in stop) or not stop
         # The cost is a broad valley with a rough floor (rocking contacts): read the valley with a
         # quadratic over the late generations rather than trusting one lucky sample.
@@ -199,6 +204,11 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
                 curv = with_covariance(curv, boot_cov)
         # a search stopped before converging has not narrowed further than its own spread
         search_std = np.asarray(es.result.stds, dtype=float) * s0
+        if not converged and np.all(search_std <= curv.std):
+            # the search's spread is inside what the data can tell (the rough floor of the cost keeps
+            # tolx from firing): more generations would move the estimate by less than its σ
+            converged = True
+            stop["search_within_sigma"] = True
         if np.any(search_std > curv.std):
             scale = np.maximum(search_std, curv.std) / np.maximum(curv.std, 1e-300)
             curv = with_covariance(curv, curv.cov * np.outer(scale, scale))
