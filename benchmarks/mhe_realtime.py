@@ -5,9 +5,8 @@ Usage::
     python benchmarks/mhe_realtime.py [LOG]
 
 LOG: any push log, e.g. one recorded by ``amhe run --task t3 --mode true`` (the
-box's mass switches 4 -> 6 kg at 10 s; docs/tasks.md). Without LOG it looks for
-``shared/logs/mass_switch.mcap`` beside the checkout, which is not part of the
-repository.
+box's mass switches 4 -> 6 kg at 10 s; docs/tasks.md). Without LOG it replays
+the bundled example log (a short probe: few informative updates).
 
 Runs ``amhe mhe-replay LOG --realtime`` with the default settings (all rollout
 threads of this machine), prints the updates that fell behind and the lag, and
@@ -18,16 +17,14 @@ as its last line ``realtime_factor=<log duration ÷ estimator compute time>``;
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
-from amhe_cli.estimation.problem import load_problem
+from amhe_cli.estimation.problem import example_logs, load_problem
 from amhe_cli.estimation.replay import replay
 
 
 def main() -> None:
-    default = Path(__file__).resolve().parents[2] / "shared" / "logs" / "mass_switch.mcap"
-    log = sys.argv[1] if len(sys.argv) > 1 else str(default)
+    log = sys.argv[1] if len(sys.argv) > 1 else str(example_logs()[0])
     problem = load_problem(log, params=("box_mass", "box_friction"))
     settings = MHESettings()
     with MovingHorizonEstimator(problem.scene, problem.space, settings) as mhe:
