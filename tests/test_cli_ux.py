@@ -16,33 +16,11 @@ from types import SimpleNamespace
 import click
 import numpy as np
 import pytest
+from helpers import amhe, one_line_error
 
 from amhe_cli.estimation.problem import example_logs
 
 FAST_ID = ["--clips", "4", "--popsize", "4", "--params", "box_mass,box_friction", "-q"]
-
-
-def amhe(capsys, *args):
-    """Run the CLI in-process: (exit code, stdout, stderr)."""
-    from amhe_cli.cli import main
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line_error(result, *words) -> str:
-    code, _, err = result
-    assert code == 2, err
-    assert "Traceback" not in err
-    lines = [ln for ln in err.strip().splitlines() if ln.startswith("amhe: error:")]
-    assert len(lines) == 1, err
-    for w in words:
-        assert w in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers import amhe, one_line_error
 
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
@@ -505,28 +506,6 @@ def test_an_exception_in_the_loop_closes_the_plant_with_its_reason_and_keeps_the
 
 
 # -- the run command -----------------------------------------------------------------
-
-def amhe(capsys, *args):
-    """Run the CLI in-process: (exit code, stdout, stderr)."""
-    from amhe_cli.cli import main
-    try:
-        main([str(a) for a in args])
-        code = 0
-    except SystemExit as e:
-        code = e.code
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def one_line_error(result, *words):
-    code, _, err = result
-    assert code == 2, err
-    assert "Traceback" not in err
-    lines = [ln for ln in err.strip().splitlines() if ln.startswith("amhe: error:")]
-    assert len(lines) == 1, err
-    for w in words:
-        assert w in lines[0], lines[0]
-
 
 def test_run_unknown_task(capsys, tmp_path):
     one_line_error(amhe(capsys, "run", "--task", "t9", "--out", tmp_path / "r.mcap"), "t9")
