@@ -587,3 +587,33 @@ def test_summarise_gives_success_rate_and_mean_std_per_mode():
                       ("rmse", [0.05, 0.15, 0.1, 0.1])):
         assert true[key] == (pytest.approx(np.mean(vals)), pytest.approx(np.std(vals))), key
     json.dumps(table)  # plain floats: the --json table
+
+
+def test_evaluate_keeps_rows_as_they_finish_and_resume_runs_only_the_missing(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from amhe_cli.io.rows import read_rows
+    out, jsonl = tmp_path / "grid.csv", tmp_path / "grid.jsonl"
+    cmd = [sys.executable, "-c", "from amhe_cli.cli import main; main()", "evaluate", "--task", "t1",
+           "--modes", "true", "--seeds", "4", "--duration", "0.6", "--workers", "1", "--out", str(out), "-q"]
+    proc = subprocess.Popen(cmd + ["--jsonl", str(jsonl)], stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and (not out.exists() or len(read_rows(out)) < 2):
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGINT)  # cut the grid off after two runs
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "--resume" in err, err
+    first = read_rows(out)
+    assert 2 <= len(first) < 4
+    assert len(jsonl.read_text().splitlines()) == len(first)
+    refused = subprocess.run(cmd, capture_output=True, text=True, timeout=60)
+    assert refused.returncode == 2 and "already exists" in refused.stderr  # nothing lost without --resume
+    done = subprocess.run(cmd + ["--resume", "--json"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = read_rows(out)
+    assert sorted(r["seed"] for r in rows) == [0, 1, 2, 3]
+    assert rows[:len(first)] == first  # finished rows kept as they were, not run again
+    assert json.loads(done.stdout)["rows"][0]["n"] == 4

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
-from csv import writer as csv_writer
+import sys
+from pathlib import Path
 
 import click
 
 from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, load_belief, progress_bar
 from amhe_cli.errors import AmheError
+from amhe_cli.io.rows import RowLog, read_rows
+
 
 @click.command("evaluate")
 @click.option("--task", "task_name", default="t4", show_default=True, help=TASK_HELP)
@@ -28,16 +31,24 @@ from amhe_cli.errors import AmheError
 @click.option("--out", default=None, type=click.Path(),
               help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz "
                    "(default: evaluate_<task>.csv).")
-@click.option("--force", is_flag=True, help="Overwrite an existing --out file.")
+@click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl).")
+@click.option("--resume", is_flag=True,
+              help="Keep the rows an existing --out already has (a grid cut off) and run only the missing ones.")
+@click.option("--jsonl", default=None, type=click.Path(),
+              help="Also append each finished run as one JSON line (all its metrics) to this file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary table as one JSON object and nothing else.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
-def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out, force, as_json, quiet):
+def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out, force, resume, jsonl, as_json,
+                 quiet):
     """Run modes × seeds of a task in parallel and print the paper's Table I layout.
 
     Per mode: success rate S_R [%], and mean ± std over the seeds of the final
     goal error e_g [m], the task cost J per control cycle and the execution
     time t_exec [s] (until the box is at the goal, else the time limit).
-    The --out CSV is refused if it exists, unless --force, before any run.
+    Each run's row is appended to the --out CSV (and --jsonl) the moment it
+    finishes, so a grid cut off loses only the runs in flight; --resume then
+    runs only what is missing. Without --resume or --force an existing --out
+    is refused before any run.
     """
     from amhe_cli.control.evaluate import evaluate, load_config, probe_belief, run_settings, summarise
 
@@ -52,7 +63,21 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
     task, _ = run_settings(task_name, mode_list[0] if mode_list else "true", cfg, duration=duration)
     if workers is not None and workers < 1:
         raise AmheError(f"--workers {workers}: expected at least 1")
-    (out_path,) = check_outputs(force, ("--out", out or f"evaluate_{task.name}.csv"))
+    if resume and force:
+        raise AmheError("--resume keeps the rows --out has and --force discards them: give one of them")
+    out_path = Path(out or f"evaluate_{task.name}.csv")
+    kept: list[dict] = []
+    if resume and out_path.exists():
+        kept = [r for r in read_rows(out_path) if r["mode"] in mode_list and r["seed"] < seeds]
+        other = {r["task"] for r in kept} - {task.name}
+        if other:
+            raise AmheError(f"--resume: {out_path} holds rows of task {', '.join(sorted(other))}, not {task.name}")
+        (jsonl_path,) = check_outputs(True, ("--jsonl", jsonl)) if jsonl else (None,)
+    else:
+        out_path, jsonl_path = check_outputs(force, ("--out", out_path), ("--jsonl", jsonl))
+        for p in (out_path, jsonl_path):
+            if p is not None and p.exists():
+                p.unlink()  # --force: start the grid anew
     if task.name == "t5":
         click.echo(f"amhe: warning: {T5_WARNING}", err=True)
     start = load_belief(belief)
@@ -65,16 +90,32 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
             start = probe_belief(task, seed=0, progress=lambda g, b: pbar.update(g - pbar.n))
         finally:
             pbar.close()
-    bar = progress_bar(seeds * len(mode_list), f"evaluate {task.name}", quiet or as_json, counter="{n_fmt}/{total_fmt} runs")
+    done = {(r["mode"], r["seed"]) for r in kept}
+    total = seeds * len(mode_list)
+    if kept and not (quiet or as_json):
+        click.echo(f"--resume: {len(done)} of {total} runs already in {out_path}; running the other "
+                   f"{total - len(done)}", err=True)
+    rows = list(kept)
+    bar = progress_bar(total, f"evaluate {task.name}", quiet or as_json, counter="{n_fmt}/{total_fmt} runs")
+    bar.update(len(done))
+
+    def finished(row: dict) -> None:
+        log.write(row)
+        rows.append(row)
+        bar.update(1)
+        bar.set_postfix_str("S_R " + " ".join(
+            f"{m} {sum(r['success'] for r in rows if r['mode'] == m)}/{sum(r['mode'] == m for r in rows)}"
+            for m in mode_list))
     try:
-        rows = evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=lambda r: bar.update(1))
+        with RowLog(out_path, jsonl_path) as log:
+            evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=finished, done=done)
+    except KeyboardInterrupt:
+        bar.close()
+        click.echo(f"amhe: interrupted: {len(rows)} of {total} runs are in {out_path}; run the same command "
+                   "with --resume to finish the grid", err=True)
+        sys.exit(130)
     finally:
         bar.close()
-    keys = ["task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz"]
-    with open(out_path, "w", newline="") as fh:
-        w = csv_writer(fh)
-        w.writerow(keys)
-        w.writerows([[r[k] for k in keys] for r in rows])
     table = summarise(rows, mode_list)
     if as_json:
         click.echo(json.dumps({"task": task.name, "seeds": seeds, "rows": table, "csv": str(out_path)}))

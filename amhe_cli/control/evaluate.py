@@ -12,7 +12,7 @@
 from __future__ import annotations
 
 import os
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import replace
 from pathlib import Path
 
@@ -116,25 +116,42 @@ def _one(args) -> dict:
 
 
 def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: dict | None = None,
-             workers: int | None = None, duration: float | None = None, progress=None) -> list[dict]:
+             workers: int | None = None, duration: float | None = None, progress=None,
+             done: set | None = None) -> list[dict]:
     """Run every mode × seed of a task in worker processes (one rollout thread each).
 
+    Args:
+        done: (mode, seed) pairs to skip (rows a cut-off grid already has).
+        progress: called with each row the moment its run finishes (in finishing
+            order) — where a caller writes it to disk.
     Returns:
-        one dict per run: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz.
+        one dict per run made, in finishing order: task, mode, seed, success,
+        e_g, J, t_exec, rmse, fell, control_hz (and ``failure`` where the plant failed).
     Raises:
         AmheError: unknown mode, or modes needing a belief without one.
+        KeyboardInterrupt: passed on after the runs not yet started are cancelled
+            (those in flight are lost; every finished one went to ``progress``).
     """
     check_names(modes, MODES, "mode")
     if belief is None and set(modes) - {"true"}:
         raise AmheError("baseline and adaptive modes need a belief")
     run_settings(task_name, modes[0], config, duration=duration)  # validate before forking
-    jobs = [(task_name, m, s, config, belief.__dict__ if belief else None, duration) for s in range(seeds) for m in modes]
+    done = done or set()
+    jobs = [(task_name, m, s, config, belief.__dict__ if belief else None, duration)
+            for s in range(seeds) for m in modes if (m, s) not in done]
     rows = []
-    with ProcessPoolExecutor(max_workers=workers or os.cpu_count()) as pool:
-        for row in pool.map(_one, jobs):
+    pool = ProcessPoolExecutor(max_workers=workers or os.cpu_count())
+    try:
+        futures = [pool.submit(_one, job) for job in jobs]
+        for fut in as_completed(futures):
+            row = fut.result()
             rows.append(row)
             if progress is not None:
                 progress(row)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
     return rows
 
 

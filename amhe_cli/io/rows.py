@@ -1,0 +1,97 @@
+"""Per-run rows of an evaluation grid, written the moment each run finishes.
+
+A grid of closed-loop runs takes hours; cut off (a time limit, Ctrl-C, a lost
+machine) it must lose at most the runs in flight. :class:`RowLog` appends one
+CSV row (and, if asked, one JSON line) per finished run and flushes it to disk
+at once; :func:`read_rows` reads such a CSV back, typed, so that a re-run with
+``--resume`` skips what is there and summarises everything.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from pathlib import Path
+
+from amhe_cli.errors import AmheError
+
+#: Columns of an evaluation CSV, in order.
+ROW_KEYS = ("task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz")
+_TYPES = {"task": str, "mode": str, "seed": int, "success": lambda v: v == "True", "fell": lambda v: v == "True"}
+
+
+def read_rows(path: str | os.PathLike) -> list[dict]:
+    """The rows of an evaluation CSV written by :class:`RowLog`, typed (ints, floats, bools).
+
+    A last line cut off mid-write (the process was killed) is dropped.
+
+    Raises:
+        AmheError: the file's header is not :data:`ROW_KEYS`, or a complete row does not parse.
+    """
+    path = Path(path)
+    with path.open(newline="") as fh:
+        lines = fh.read().splitlines(keepends=True)
+    if not lines:
+        return []
+    if lines and not lines[-1].endswith("\n"):
+        lines = lines[:-1]  # a row cut off mid-write
+    reader = csv.reader(lines)
+    header = next(reader, None)
+    if header is None:
+        return []
+    if tuple(header) != ROW_KEYS:
+        raise AmheError(f"{path}: not an amhe evaluate CSV (columns {', '.join(header)}; expected "
+                        f"{', '.join(ROW_KEYS)})")
+    rows = []
+    for i, values in enumerate(reader, start=2):
+        if len(values) != len(ROW_KEYS):
+            raise AmheError(f"{path}, line {i}: {len(values)} values, expected {len(ROW_KEYS)}")
+        try:
+            rows.append({k: _TYPES.get(k, float)(v) for k, v in zip(ROW_KEYS, values)})
+        except ValueError:
+            raise AmheError(f"{path}, line {i}: a value does not parse: {values}") from None
+    return rows
+
+
+class RowLog:
+    """Append-only CSV (and JSON-lines) of grid rows, each flushed to disk as it is written.
+
+    Args:
+        csv_path: the CSV; its header is written when the file is new or empty.
+        jsonl_path: optional JSON-lines file, one object per row (all keys of the row).
+    """
+
+    def __init__(self, csv_path: str | os.PathLike, jsonl_path: str | os.PathLike | None = None):
+        self.csv_path = Path(csv_path)
+        new = not self.csv_path.exists() or self.csv_path.stat().st_size == 0
+        self._csv = self.csv_path.open("a", newline="")
+        self._writer = csv.writer(self._csv)
+        if new:
+            self._writer.writerow(ROW_KEYS)
+            self._flush(self._csv)
+        self._jsonl = Path(jsonl_path).open("a") if jsonl_path is not None else None
+
+    @staticmethod
+    def _flush(fh) -> None:
+        fh.flush()
+        os.fsync(fh.fileno())
+
+    def write(self, row: dict) -> None:
+        """Append one run's row (keys :data:`ROW_KEYS`, more allowed in the JSON line) and flush it."""
+        self._writer.writerow([row[k] for k in ROW_KEYS])
+        self._flush(self._csv)
+        if self._jsonl is not None:
+            self._jsonl.write(json.dumps(row, default=float) + "\n")
+            self._flush(self._jsonl)
+
+    def close(self) -> None:
+        self._csv.close()
+        if self._jsonl is not None:
+            self._jsonl.close()
+
+    def __enter__(self) -> "RowLog":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
