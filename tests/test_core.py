@@ -33,6 +33,7 @@ from amhe_cli.model.scene import (
 )
 from amhe_cli.io.trajectory import GO1_JOINTS
 from amhe_cli.estimation.uncertainty import curvature
+from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley
 
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
 #: the standing robot's head front is at x ≈ 0.28 m; box half-size 0.19 m; 1 cm gap
@@ -527,12 +528,48 @@ def test_identify_recovers_truth(traj):
            f"J(truth) = {j_truth:.4g} on the same clips")
     assert mass == pytest.approx(5.0, rel=0.05), why
     assert mu == pytest.approx(0.45, abs=0.03), why
+    # the estimate is CMA-ES's final mean (not a quadratic's minimum: issue 12), and its σ covers the truth
+    np.testing.assert_allclose(res.estimate, space.project(np.array(res.history[-1]["mean"]))[0][0], rtol=1e-12)
+    assert np.all(np.abs(res.estimate - _truth_vec(space)) <= 2 * res.curvature.std), \
+        f"{why}; σ {res.curvature.std}"
     assert res.cost_estimate < res.cost_prior
     assert res.residual_rms < 1.0  # the model explains the log
     assert np.all(np.isfinite(res.curvature.std)) and np.all(res.curvature.std > 0)
     summ = res.summary()
     assert set(summ["estimate"]) == {"box_mass", "box_friction"}
     assert summ["generations"] == len(res.history) <= 25
+
+
+def test_fit_valley_recovers_a_quadratic_minimum():
+    rng = np.random.default_rng(0)
+    Z = rng.normal(size=(60, 2))
+    zmin = np.array([0.3, -0.2])
+    H = np.array([[2.0, 0.6], [0.6, 1.0]])
+    J = 0.5 * np.einsum("ni,ij,nj->n", Z - zmin, H, Z - zmin) + 7.0
+    v = fit_valley(Z, J, Z.mean(axis=0))
+    assert v.convex and v.r2 == pytest.approx(1.0)
+    np.testing.assert_allclose(v.z_min, zmin, atol=1e-9)
+    assert fit_valley(Z[:11], J[:11], np.zeros(2)) is None  # fewer than 2 x 6 samples
+
+
+def test_bootstrap_spread_on_a_valley_that_is_not_convex():
+    """A flat, non-convex fit still gives a spread (bounded by the cloud), not none: identify's σ uses it."""
+    rng = np.random.default_rng(1)
+    Z = rng.normal(scale=0.1, size=(80, 2))
+    # 8 clips: convex in z0, a saddle (concave) in z1 plus noise: the summed fit is not convex
+    K = np.stack([(Z[:, 0] - 0.02 * k) ** 2 - 0.5 * Z[:, 1] ** 2 + 1e-3 * rng.normal(size=80) for k in range(8)], 1)
+    v = fit_valley(Z, K.sum(axis=1), np.zeros(2))
+    assert not v.convex
+    minima = bootstrap_minima(Z, K, v, prior_weight=0.0, rng=np.random.default_rng(0))
+    assert minima.shape == (200, 2) and np.all(np.isfinite(minima))
+    assert np.all(np.abs(minima - v.centre) <= 3.0 * v.scale + 1e-12)  # held within the cloud
+    assert minima[:, 1].std() > v.scale[1]  # the unresolved coordinate is as wide as the cloud, not 0
+    # a convex valley of the same clips (the saddle term's sign flipped) gives a spread well inside the cloud
+    Kc = K + Z[:, 1:2] ** 2
+    vc = fit_valley(Z, Kc.sum(axis=1), np.zeros(2))
+    assert vc.convex
+    mc = bootstrap_minima(Z, Kc, vc, prior_weight=0.0, rng=np.random.default_rng(0))
+    assert mc.std(axis=0).max() < 0.5 * minima[:, 1].std()
 
 
 # --------------------------------------------------------------------------- plant

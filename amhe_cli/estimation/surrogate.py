@@ -3,14 +3,20 @@
 Contact-rich rollouts make ``J(p)`` rough at small scales: a box rocking on its
 corners turns a 1 % change of mass into millimetre-level differences in when it
 lands, so the cost is a broad valley with a noisy floor (and, when the model is
-exactly the plant's, a narrow spike at the truth). A single best sample or a
-finite difference at 1 % reads that noise. A quadratic fitted by least squares
-to the late CMA-ES generations reads the valley at the scale CMA-ES explored:
+exactly the plant's, a narrow spike at the truth). A finite difference at 1 %
+reads that noise. A quadratic fitted by least squares to the late CMA-ES
+generations reads the valley at the scale CMA-ES explored:
 
-* its minimiser is the estimate (:func:`fit_valley`);
+* :func:`fit_valley` fits it (and sets the standardisation below). Its
+  minimiser is *not* the identify estimate: over that cloud ``J`` is far from
+  quadratic and least squares lets the far, costly samples place the minimum
+  (2.354 kg on the bundled 2.5 kg example, seed 0, with ``J`` there 4× that at
+  the CMA-ES mean, 2.540 kg); :mod:`~amhe_cli.estimation.identify` reports the
+  CMA-ES mean instead;
 * per-clip quadratics, resampled over clips (bootstrap), give the spread of
-  that minimiser across plausible clip sets — the uncertainty that seed-to-seed
-  reruns show (:func:`bootstrap_minima`).
+  the optimum across plausible clip sets — the uncertainty that seed-to-seed
+  reruns show (:func:`bootstrap_minima`), also where the summed fit is not
+  convex (each resample's minimiser then stays within ``bound`` sample σ).
 
 All work happens in standardised coordinates ``u = (z - centre) / scale``.
 """
@@ -45,6 +51,16 @@ def _psd(H: np.ndarray, floor: float) -> np.ndarray:
 
 
 def _minimise(g: np.ndarray, H: np.ndarray, bound: float) -> np.ndarray:
+    """Minimiser of ``g·u + ½ uᵀ H u`` with ``H``'s eigenvalues floored positive, clipped to ``|u_i| ≤ bound``.
+
+    Along a flat or concave direction the floored step is huge and the clip
+    holds it (and, through the eigenvectors' tilt, the coordinates coupled to
+    it) at the edge of the fitted cloud: conservative. A trust-region step
+    (Moré–Sorensen) would keep the resolved coordinates tighter, but measured
+    on the bundled examples it made the bootstrap σ too narrow to cover the
+    inertia truth (6 of the 24 inertia moments of the two bundled examples,
+    seeds 0–3, outside 2σ, against none this way; see identify's module doc).
+    """
     scale = max(float(np.abs(np.diag(H)).max()), 1e-12)
     u = -np.linalg.solve(_psd(H, 1e-6 * scale), g)
     return np.clip(u, -bound, bound)
@@ -73,7 +89,14 @@ class Valley:
 def fit_valley(Z: np.ndarray, J: np.ndarray, centre: np.ndarray, bound: float = 3.0) -> Valley | None:
     """Fit ``J ≈ quadratic(z)`` over samples ``Z`` (n, d) with costs ``J`` (n,).
 
-    Returns None when there are too few samples for a quadratic (n < 2m).
+    Args:
+        Z: (n, d) evaluated points in optimiser coordinates.
+        J: (n,) their costs.
+        centre: (d,) standardisation centre (the CMA-ES mean).
+        bound: limit of the minimiser, in sample standard deviations.
+
+    Returns None when there are too few samples for a quadratic (n < 2m,
+    ``m = 1 + d + d(d+1)/2`` features).
     The minimiser is limited to ``bound`` sample standard deviations from
     ``centre`` (a quadratic is not trusted beyond the cloud it was fitted on).
     """
@@ -96,6 +119,12 @@ def fit_valley(Z: np.ndarray, J: np.ndarray, centre: np.ndarray, bound: float = 
 def bootstrap_minima(Z: np.ndarray, per_clip: np.ndarray, valley: Valley, prior_weight: float,
                      n_boot: int = 200, rng: np.random.Generator | None = None, bound: float = 3.0) -> np.ndarray:
     """Minimisers of the summed per-clip quadratics over clip sets resampled with replacement.
+
+    Each resample's Hessian is floored to positive definite and its minimiser
+    held within ``bound`` sample standard deviations of ``valley.centre``, so a
+    flat or non-convex valley gives a spread as wide as the explored cloud
+    rather than none (how :func:`~amhe_cli.estimation.identify.identify` uses it
+    even when ``valley.convex`` is False).
 
     Args:
         Z: (n, d) evaluated points (optimiser coordinates: prior mean at 0, prior σ = 1).
