@@ -1,4 +1,4 @@
-"""A new user's first hour (issue 12): outputs never overwritten, commands that explain themselves.
+"""A new user's first hour: outputs never overwritten, commands that explain themselves.
 
 Fast: the CLI runs in-process, and every refusal is checked with a bad LOG or
 settings that would take long, so a refusal that came after the work would
