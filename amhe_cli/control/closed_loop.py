@@ -1,9 +1,12 @@
 """The closed loop of the paper's Algorithm 1: plant, MPOPI planner and the MHE thread.
 
-:func:`run_task` runs one task in the sim plant:
+:func:`run_task` runs one task on a plant:
 
-* the **plant** (:class:`~amhe_cli.plants.sim.SimPlant`) is its own MuJoCo model with
-  the true parameters and a 2 ms step; task events act on it only;
+* the **plant** (:class:`~amhe_cli.plants.base.Plant`) is measured and commanded
+  through one interface: the sim plant (:class:`~amhe_cli.plants.sim.SimPlant`,
+  its own MuJoCo model with the true parameters and a 2 ms step; task events
+  act on it only) or a Go1 (:class:`~amhe_cli.plants.go1.plant.Go1Plant`,
+  always on the wall clock);
 * the **planner** (:class:`~amhe_cli.control.planner.Planner`) has its own model at a
   10 ms step and sees the plant only through its measured state;
 * the **estimator** (:class:`EstimatorThread`) runs the MHE of ``mhe-replay``
@@ -20,8 +23,8 @@ model's prediction of the state at the expected arrival (an average of the
 recent compute times), after those rows, and the plan starts there (its
 ``lead``).
 
-Timing (the sim plant's; a real robot never waits): by default the plant waits for the planner (lock-step; reproducible for a
-seed — the MHE's update for the window ending at ``t`` is applied at
+Timing of the sim plant (a real robot never waits): by default it waits for the
+planner (lock-step; reproducible for a seed — the MHE's update for the window ending at ``t`` is applied at
 ``t + every`` in plant time, the thread computing it meanwhile). With
 ``realtime`` the plant runs on for as long as each planner cycle took (with the
 previous plan's later targets, as a real robot would), and an estimate is used

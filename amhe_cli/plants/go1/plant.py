@@ -18,6 +18,7 @@ other log. Nobody knows a real box's parameters: ``truth_values`` is None.
 
 from __future__ import annotations
 
+import bisect
 import threading
 import time
 from dataclasses import dataclass, field
@@ -30,7 +31,7 @@ from amhe_cli.io.trajectory import Trajectory
 from amhe_cli.model.scene import Scene
 from amhe_cli.plants.base import Measurement, Plant, PlantFailure
 from amhe_cli.plants.go1.link import LowLevelLink
-from amhe_cli.plants.go1.protocol import LOCAL_PORT, MODE_DAMPING, ROBOT_ADDRESS
+from amhe_cli.plants.go1.protocol import LOCAL_PORT, ROBOT_ADDRESS
 from amhe_cli.plants.go1.relay import Relay
 from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
 from amhe_cli.plants.go1.state import StateEstimator
@@ -147,8 +148,7 @@ class Go1Plant(Plant):
     def _on_tick(self, now: float, state, q_sent, mode) -> None:
         s = self.settings
         base, box = self.poses.latest(s.base_body), self.poses.latest(s.box_body)
-        fresh = self.poses.age(s.base_body, now) <= s.safety.mocap_timeout and \
-            self.poses.age(s.box_body, now) <= s.safety.mocap_timeout
+        fresh = all(p is not None and now - p.received <= s.safety.mocap_timeout for p in (base, box))
         self.relay.set_mocap_ok(fresh)
         with self._lock:
             if state is not None:
@@ -164,7 +164,7 @@ class Go1Plant(Plant):
                 raw = self._raw[key]
                 if sample is not None and (not raw or raw[-1][3] != sample.seq):
                     raw.append((sample.received - self._t0, sample.pos, sample.quat, sample.seq))
-            if q_sent is not None and mode != MODE_DAMPING:
+            if q_sent is not None:  # armed: what went out (a dry run sends none: what it would have)
                 self._ctrl = np.asarray(q_sent, dtype=float)
             elif self.relay.would_send:
                 self._ctrl = self.relay.would_send[-1][1]
@@ -225,7 +225,10 @@ class Go1Plant(Plant):
             qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
-            raw = {key: list(v) for key, v in self._raw.items()}
+            # the mocap samples from just before the window on (the MHE asks for the last second)
+            t_from = t[0] if len(t) else 0.0
+            raw = {key: v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]
+                   for key, v in self._raw.items()}
         sc, dt = self.scene, self.record_dt
         if len(t) == 0:
             grid = np.zeros(0)

@@ -241,12 +241,7 @@ class Relay:
                 return self._hold_q, s.hold_kp, s.hold_kd, MODE_SERVO
             if self.phase != "run":
                 self._set_phase("run")
-            controls, dt, t0 = plan
-            u = np.clip((now - t0) / dt, 0, len(controls) - 1)
-            k = min(int(u), len(controls) - 2) if len(controls) > 1 else 0
-            f = u - k if len(controls) > 1 else 0.0
-            q = controls[k] if len(controls) == 1 else (1 - f) * controls[k] + f * controls[k + 1]
-            return q, self.kp, self.kd, MODE_SERVO
+            return _plan_at(plan, now), self.kp, self.kd, MODE_SERVO
         return stand, 0.0, s.damping_kd, MODE_DAMPING
 
     def _loop(self) -> None:
@@ -317,8 +312,15 @@ class Relay:
         """In a dry run the would-be command follows the plan (or the stand) as if armed."""
         with self._lock:
             plan = self._plan
-        if plan is None:
-            return STAND_JOINTS, self.kp, self.kd, MODE_SERVO
-        controls, dt, t0 = plan
-        k = int(np.clip(round((now - t0) / dt), 0, len(controls) - 1))
-        return controls[k], self.kp, self.kd, MODE_SERVO
+        q = STAND_JOINTS if plan is None else _plan_at(plan, now)
+        return q, self.kp, self.kd, MODE_SERVO
+
+
+def _plan_at(plan: tuple[np.ndarray, float, float], now: float) -> np.ndarray:
+    """(12,) targets of ``plan = (controls (H, 12), dt, t0)`` at ``now``: linear between rows, the ends held."""
+    controls, dt, t0 = plan
+    if len(controls) == 1:
+        return controls[0]
+    u = float(np.clip((now - t0) / dt, 0, len(controls) - 1))
+    k = min(int(u), len(controls) - 2)
+    return controls[k] + (u - k) * (controls[k + 1] - controls[k])

@@ -46,9 +46,8 @@ class _Differentiator:
         self.linvel = np.zeros(3)
         self.angvel = np.zeros(3)
 
-    def add(self, stamp: float, pos: np.ndarray, quat: np.ndarray) -> np.ndarray | None:
-        """Feed one sample; returns the raw (3,) linear velocity of this step (None on the first)."""
-        raw = None
+    def add(self, stamp: float, pos: np.ndarray, quat: np.ndarray) -> None:
+        """Feed one sample (a sample no later than the last one is ignored by the low-pass)."""
         if self.last is not None:
             dt = stamp - self.last[0]
             if dt > 1e-4:
@@ -58,7 +57,6 @@ class _Differentiator:
                 self.linvel += a * (raw - self.linvel)
                 self.angvel += a * (w - self.angvel)
         self.last = (stamp, np.asarray(pos, float), np.asarray(quat, float))
-        return raw
 
 
 class StateEstimator:
@@ -85,11 +83,11 @@ class StateEstimator:
         self._yaw_offset: float | None = None
         self._imu_t: float | None = None
         self._base_v = np.zeros(3)
-        self._base = _Differentiator(tau_base)
-        self._box = _Differentiator(tau_box)
-        self._base_pose = None  # (received, pos, quat)
-        self._box_pose = None
         self.tau_base = tau_base
+        self._box = _Differentiator(tau_box)
+        self._base_pose = None  # (received, pos, quat, seq) of the newest trunk sample, and its stamp:
+        self._base_stamp = 0.0
+        self._box_pose = None
 
     @property
     def base_quat(self) -> np.ndarray:
@@ -123,18 +121,19 @@ class StateEstimator:
     def update_poses(self, base, box) -> None:
         """Feed the newest :class:`~amhe_cli.plants.go1.mocap.PoseSample` of the trunk and the box (None: none yet)."""
         if base is not None and (self._base_pose is None or base.seq != self._base_pose[3]):
-            prev = self._base.last
-            raw = self._base.add(base.stamp, base.pos, base.quat)
-            dt = 0.0 if prev is None else max(base.stamp - prev[0], 0.0)
-            if raw is not None:
+            if self._base_pose is not None and base.stamp - self._base_stamp > 1e-4:
+                dt = base.stamp - self._base_stamp
+                raw = (np.asarray(base.pos, float) - self._base_pose[1]) / dt
                 self._base_v = self._base_v + dt / (self.tau_base + dt) * (raw - self._base_v)
             yaw_err = _wrap(float(quat_to_yaw(base.quat)) - float(quat_to_yaw(self._imu_quat)))
             if self._yaw_offset is None:
                 self._yaw_offset = yaw_err
             else:
+                dt = max(base.stamp - self._base_stamp, 0.0)
                 gain = dt / (self.tau_yaw + dt)
                 self._yaw_offset = _wrap(self._yaw_offset + gain * _wrap(yaw_err - self._yaw_offset))
             self._base_pose = (base.received, np.asarray(base.pos, float), np.asarray(base.quat, float), base.seq)
+            self._base_stamp = base.stamp
         if box is not None and (self._box_pose is None or box.seq != self._box_pose[3]):
             self._box.add(box.stamp, box.pos, box.quat)
             self._box_pose = (box.received, np.asarray(box.pos, float), np.asarray(box.quat, float), box.seq)
