@@ -197,22 +197,6 @@ class LineProgress:
             self.printed = 0
 
 
-class _Silent:
-    """A progress bar that shows nothing (``--quiet``/``--json``)."""
-
-    def __init__(self):
-        self.n = 0.0
-
-    def update(self, k: float = 1) -> None:
-        self.n += k
-
-    def set_postfix_str(self, text: str) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
-
-
 def progress_bar(total: float, desc: str, quiet: bool, counter: str = "{n_fmt}/{total_fmt} gen",
                  interval: float = 5.0):
     """Progress on stderr: a tqdm bar on a terminal, a plain line every ``interval`` s otherwise.
@@ -228,13 +212,13 @@ def progress_bar(total: float, desc: str, quiet: bool, counter: str = "{n_fmt}/{
     Returns:
         An object with ``n``, ``update(k)``, ``set_postfix_str(text)`` and ``close()``.
     """
+    from tqdm import tqdm
     if quiet:
-        return _Silent()
+        return tqdm(total=total, disable=True)
     if not (hasattr(sys.stderr, "isatty") and sys.stderr.isatty()):
         unit = counter.rsplit("}", 1)[-1]
         fmt_n = "{:.1f}" if ":.1f" in counter or ":.0f" in counter else "{:g}"
         return LineProgress(total, desc, unit=unit, fmt_n=fmt_n, interval=interval)
-    from tqdm import tqdm
     return tqdm(total=total, desc=desc, file=sys.stderr, leave=False,
                 bar_format="{desc}: " + counter + " |{bar}| {elapsed} {postfix}")
 
@@ -384,12 +368,20 @@ def parse_smooth(text: str) -> int | str:
     return n
 
 
+def _two_numbers(text: str, flag: str, names: str) -> tuple[float, float]:
+    """``"a,b"`` -> (a, b) finite floats; AmheError naming ``flag`` and the expected ``names`` otherwise."""
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise AmheError(f"{flag} {text!r}: expected two numbers {names}") from None
+    if not (np.isfinite(a) and np.isfinite(b)):
+        raise AmheError(f"{flag} {text!r}: expected finite numbers")
+    return a, b
+
+
 def parse_range(text: str, flag: str) -> tuple[float, float]:
     """``"a,b"`` -> (a, b) with a <= b; AmheError naming ``flag`` otherwise."""
-    try:
-        a, b = (float(x) for x in text.split(","))
-    except ValueError:
-        raise AmheError(f"{flag} {text!r}: expected two numbers MIN,MAX") from None
+    a, b = _two_numbers(text, flag, "MIN,MAX")
     if not a <= b:
         raise AmheError(f"{flag} {text!r}: expected MIN <= MAX")
     return a, b
@@ -397,10 +389,4 @@ def parse_range(text: str, flag: str) -> tuple[float, float]:
 
 def parse_xy(text: str, flag: str) -> tuple[float, float]:
     """``"x,y"`` -> (x, y) finite floats; AmheError naming ``flag`` otherwise."""
-    try:
-        x, y = (float(v) for v in text.split(","))
-    except ValueError:
-        raise AmheError(f"{flag} {text!r}: expected two numbers X,Y") from None
-    if not (np.isfinite(x) and np.isfinite(y)):
-        raise AmheError(f"{flag} {text!r}: expected finite numbers")
-    return x, y
+    return _two_numbers(text, flag, "X,Y")
