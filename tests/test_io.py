@@ -22,11 +22,13 @@ from amhe_cli.io.quat import (
     quat_make_continuous,
     quat_mul,
     quat_normalize,
+    quat_relative_rotvec,
     quat_rotate,
-    quat_slerp,
     quat_to_rotvec,
     quat_to_yaw,
     ros_to_mj,
+    rotation_from_wxyz,
+    rotation_to_wxyz,
     world_to_body,
 )
 from amhe_cli.io.reader import (
@@ -261,17 +263,64 @@ def test_body_to_world_velocity_yaw_90():
     np.testing.assert_allclose(body_to_world(qs, [1.0, 0.0, 0.0]), [[1, 0, 0], [0, 1, 0], [-1, 0, 0]], atol=1e-15)
 
 
+def test_scipy_boundary_round_trips_exactly():
+    """wxyz -> xyzw -> wxyz is a reordering, bit for bit; wxyz -> Rotation -> wxyz up to SciPy's renormalisation."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    q = quat_normalize(rng.normal(size=(3, 5, 4)))
+    np.testing.assert_array_equal(ros_to_mj(mj_to_ros(q)), q)
+    rot = rotation_from_wxyz(q)
+    assert len(rot) == 15
+    np.testing.assert_allclose(rot.as_quat(), mj_to_ros(q).reshape(-1, 4), rtol=0, atol=1e-15)  # SciPy: (x, y, z, w)
+    back = rotation_to_wxyz(rot, q.shape[:-1])
+    assert back.shape == q.shape
+    np.testing.assert_allclose(back, q, rtol=0, atol=1e-15)  # SciPy renormalises: last-bit rounding only
+    np.testing.assert_array_equal(back[..., 0] > 0, q[..., 0] > 0)  # signs are not canonicalised
+    # a single quaternion is a stack of one; the identity is (1, 0, 0, 0) here and (0, 0, 0, 1) in SciPy
+    np.testing.assert_array_equal(rotation_from_wxyz([1.0, 0, 0, 0]).as_quat(), [[0, 0, 0, 1.0]])
+    np.testing.assert_array_equal(rotation_to_wxyz(Rotation.identity(), ()), [1.0, 0, 0, 0])
+
+
+def test_scipy_based_helpers_known_values():
+    """A 90° yaw through every SciPy-backed helper, and the numpy fast paths against SciPy."""
+    h = np.sqrt(0.5)
+    q = quat_from_yaw(np.pi / 2)
+    np.testing.assert_allclose(q, [h, 0.0, 0.0, h], atol=1e-16)
+    assert quat_to_yaw(q) == pytest.approx(np.pi / 2, abs=1e-15)
+    np.testing.assert_allclose(quat_to_rotvec(q), [0.0, 0.0, np.pi / 2], atol=1e-15)
+    np.testing.assert_allclose(quat_from_rotvec([0.0, 0.0, np.pi / 2]), q, atol=1e-16)
+    np.testing.assert_allclose(quat_mul(q, q), [0.0, 0.0, 0.0, 1.0], atol=1e-15)  # 180° about z
+    np.testing.assert_allclose(quat_relative_rotvec(quat_from_yaw(0.3), quat_from_yaw(0.3 + np.pi / 2)),
+                               [0.0, 0.0, np.pi / 2], atol=1e-15)
+    # fast paths agree with SciPy on random rotations of any leading shape
+    rng = np.random.default_rng(5)
+    a = quat_normalize(rng.normal(size=(4, 6, 4)))
+    b = quat_normalize(rng.normal(size=(4, 6, 4)))
+    ref = (rotation_from_wxyz(a).inv() * rotation_from_wxyz(b)).as_rotvec().reshape(4, 6, 3)
+    np.testing.assert_allclose(quat_relative_rotvec(a, b), ref, atol=1e-12)
+    np.testing.assert_allclose(quat_relative_rotvec(a, -b), ref, atol=1e-12)  # either sign, shorter rotation
+    np.testing.assert_allclose(quat_relative_rotvec(a, a), 0.0, atol=1e-15)
+    np.testing.assert_allclose(quat_to_yaw(a), rotation_from_wxyz(a).as_euler("ZYX")[:, 0].reshape(4, 6), atol=1e-12)
+
+
 def test_slerp_midpoint_and_hemisphere():
+    from amhe_cli.io.resample import _slerp
+
     q0 = quat_from_yaw(0.0)
     q1 = quat_from_yaw(np.pi / 2)
-    mid = quat_slerp(q0, q1, np.array(0.5))
+    t_msg = np.array([0, 10_000_000], dtype=np.int64)  # ns
+    mid = _slerp(t_msg, np.stack([q0, q1]), np.array([5_000_000]))[0]
     np.testing.assert_allclose(mid, quat_from_yaw(np.pi / 4), atol=1e-15)
-    # -q1 is the same rotation: slerp still takes the short way.
-    np.testing.assert_allclose(quat_slerp(q0, -q1, np.array(0.5)), mid, atol=1e-15)
-    # Batched fractions.
-    u = np.linspace(0, 1, 5)
-    yaws = quat_to_yaw(quat_slerp(np.tile(q0, (5, 1)), np.tile(q1, (5, 1)), u))
-    np.testing.assert_allclose(yaws, u * np.pi / 2, atol=1e-14)
+    # -q1 is the same rotation: slerp still takes the short way, keeping q0's sign.
+    np.testing.assert_allclose(_slerp(t_msg, np.stack([q0, -q1]), np.array([5_000_000]))[0], mid, atol=1e-15)
+    # Many grid times over a sequence of messages, at epoch-sized stamps.
+    t0 = 1_700_000_000_000_000_000
+    yaw_msg = np.array([0.0, 0.4, 1.0, 1.2])
+    t_msg = t0 + np.array([0, 10, 20, 40], dtype=np.int64) * 1_000_000
+    grid = t0 + np.arange(0, 41, 5, dtype=np.int64) * 1_000_000
+    yaws = quat_to_yaw(_slerp(t_msg, quat_from_yaw(yaw_msg), grid))
+    np.testing.assert_allclose(yaws, np.interp(grid - t0, t_msg - t0, yaw_msg), atol=1e-14)
 
 
 def test_rotvec_roundtrip_and_continuity():
@@ -431,6 +480,45 @@ def test_backward_difference_of_constant_velocity_box_is_exact(tmp_path):
         # quaternion components are not polynomials in time: a forced window is near, not exact
         np.testing.assert_allclose(got.box_angvel, traj.box_angvel, atol=1e-9 if smooth != 5 else 1e-6)
     assert "smoothing" not in read_log(bag).meta  # clean poses are left alone by default
+
+
+def test_savgol_returns_a_noisy_polynomials_derivative():
+    """SciPy Savitzky–Golay via smoothing.savgol: exact on polynomials of its order, ends included; the
+    project's window choice brings a noisy cubic's derivative noise near its 0.02/s target."""
+    from amhe_cli.io.smoothing import TARGET_VEL_SIGMA, noise_sigma, savgol, window_for
+
+    P = np.polynomial.polynomial
+    dt = 0.002
+    t = np.arange(501) * dt
+    c = [1.0, 2.0, -3.0, 0.5]  # cubic: not exact for a quadratic fit
+    x = np.stack([P.polyval(t, c), -2.0 * P.polyval(t, c)], axis=1)
+    dx = np.stack([P.polyval(t, P.polyder(c)), -2.0 * P.polyval(t, P.polyder(c))], axis=1)
+    # clean: an order-3 fit is exact everywhere (one-sided fits at the ends); order 2 is exact on a quadratic
+    val, der = savgol(x, 21, dt, order=3)
+    np.testing.assert_allclose(val, x, atol=1e-9)
+    np.testing.assert_allclose(der, dx, atol=1e-7)
+    quad = P.polyval(t, c[:3])[:, None]
+    val, der = savgol(quad, 20, dt)  # an even window is raised to 21
+    np.testing.assert_allclose(val, quad, atol=1e-9)
+    np.testing.assert_allclose(der[:, 0], P.polyval(t, P.polyder(c[:3])), atol=1e-7)
+    # noisy: 0.2 mm white noise
+    y = x + np.random.default_rng(0).normal(0.0, 2e-4, x.shape)
+    sigma = noise_sigma(y)
+    np.testing.assert_allclose(sigma, 2e-4, rtol=0.2)
+    w = window_for(float(sigma.max()), dt)
+    assert 5 <= w <= 11
+    val, der = savgol(y, w, dt)
+    inner = slice(w, -w)
+    raw = np.diff(y, axis=0) / dt - dx[1:]
+    assert np.sqrt((raw ** 2).mean()) > 0.08  # what a backward difference gives
+    rms = np.sqrt(((der - dx)[inner] ** 2).mean(axis=0))
+    assert np.all(rms < 1.5 * TARGET_VEL_SIGMA), rms
+    assert np.abs(der - dx).max() < 0.2  # ends included
+    assert np.sqrt(((val - x) ** 2).mean()) < 2e-4  # smoothing reduces the noise
+    # no smoothing: a window of 1 returns the samples and their np.gradient
+    val, der = savgol(y, 1, dt)
+    np.testing.assert_array_equal(val, y)
+    np.testing.assert_array_equal(der, np.gradient(y, dt, axis=0))
 
 
 def test_noisy_mocap_is_smoothed(tmp_path):

@@ -27,7 +27,7 @@ import numpy as np
 
 from amhe_cli.estimation.clips import ROLES, Clips
 from amhe_cli.errors import AmheError
-from amhe_cli.io.quat import quat_conj, quat_mul, quat_to_rotvec
+from amhe_cli.io.quat import quat_relative_rotvec
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.model.scene import Scene
@@ -108,7 +108,7 @@ def state_error(scene: Scene, qpos_ref: np.ndarray, qvel_ref: np.ndarray, qpos: 
     err[..., nv:] = qvel - qvel_ref
     for qadr, vadr in ((scene.base_qpos, scene.base_qvel), (scene.box_qpos, scene.box_qvel)):
         err[..., vadr[:3]] = qpos[..., qadr[:3]] - qpos_ref[..., qadr[:3]]
-        err[..., vadr[3:]] = quat_to_rotvec(quat_mul(quat_conj(qpos_ref[..., qadr[3:]]), qpos[..., qadr[3:]]))
+        err[..., vadr[3:]] = quat_relative_rotvec(qpos_ref[..., qadr[3:]], qpos[..., qadr[3:]])
     err[..., scene.joint_qvel] = qpos[..., scene.joint_qpos] - qpos_ref[..., scene.joint_qpos]
     return err
 

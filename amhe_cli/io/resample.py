@@ -1,18 +1,27 @@
 """Resample unpacked series onto one uniform grid: step 4 of :mod:`~amhe_cli.io.reader`.
 
 The grid covers the overlap of the roles: linear interpolation of positions,
-slerp of orientations, zero-order hold of the commands; velocities come from
-the log where it has them, else from a backward difference of the resampled
-poses. Base and box poses may be smoothed first (:mod:`~amhe_cli.io.smoothing`).
+slerp of orientations (``scipy.spatial.transform.Slerp`` over each pose stream's
+messages), zero-order hold of the commands; velocities come from the log where
+it has them, else from a backward difference of the resampled poses. Base and
+box poses may be smoothed first (:mod:`~amhe_cli.io.smoothing`, SciPy's
+Savitzky–Golay filter).
+
+Quaternions here are MuJoCo (w, x, y, z) arrays; they enter and leave SciPy only
+through :func:`~amhe_cli.io.quat.rotation_from_wxyz` /
+:func:`~amhe_cli.io.quat.rotation_to_wxyz`, the module :mod:`~amhe_cli.io.quat`
+being the one wxyz/xyzw boundary.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Slerp
 
 from amhe_cli.errors import AmheError
 from amhe_cli.io.trajectory import Trajectory
-from amhe_cli.io.quat import quat_conj, quat_make_continuous, quat_mul, quat_normalize, quat_slerp, quat_to_rotvec
+from amhe_cli.io.quat import (quat_make_continuous, quat_normalize, quat_relative_rotvec, rotation_from_wxyz,
+                              rotation_to_wxyz)
 from amhe_cli.io.roles import REQUIRED_ROLES
 from amhe_cli.io.smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
 from amhe_cli.io.unpack import _Series
@@ -33,6 +42,28 @@ def _lerp(x: np.ndarray, i: np.ndarray, u: np.ndarray) -> np.ndarray:
     return x[i] + u[:, None] * (x[i + 1] - x[i])
 
 
+def _slerp(t_msg: np.ndarray, q_msg: np.ndarray, grid: np.ndarray) -> np.ndarray:
+    """Orientations of a pose stream at grid times, by SciPy ``Slerp`` over all its messages.
+
+    Between two messages the rotation follows the shorter arc at constant rate,
+    whatever the quaternions' signs; the result keeps the sign of the earlier
+    message's quaternion (``q[i] ⊗ exp(u log(q[i]* ⊗ q[i+1]))``), so a
+    sign-continuous stream stays sign-continuous.
+
+    Args:
+        t_msg: (N,) strictly increasing message times [ns], N >= 2.
+        q_msg: (N, 4) message orientations (w, x, y, z).
+        grid: (N_grid,) grid times [ns]; ones outside the messages' span take the end orientation.
+
+    Returns:
+        (N_grid, 4) unit quaternions (w, x, y, z).
+    """
+    # times relative to the first message: absolute ns do not fit a float's 53 bits
+    t = (t_msg - t_msg[0]).astype(float)
+    g = np.clip((grid - t_msg[0]).astype(float), t[0], t[-1])
+    return rotation_to_wxyz(Slerp(t, rotation_from_wxyz(q_msg))(g), g.shape)
+
+
 def _observed_interp(t_msg: np.ndarray, grid: np.ndarray, period: float) -> np.ndarray:
     """True where the grid time is a message time or lies between two close messages."""
     i = np.clip(np.searchsorted(t_msg, grid, side="right") - 1, 0, len(t_msg) - 1)
@@ -50,9 +81,9 @@ def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
 
 
 def _backward_angvel(q: np.ndarray, dt: float) -> np.ndarray:
-    """(T, 4) wxyz -> (T, 3) body angular velocity, omega[i] = 2 log(q[i-1]^-1 q[i]) / dt."""
+    """(T, 4) wxyz -> (T, 3) body angular velocity [rad/s], omega[i] = 2 log(q[i-1]^-1 q[i]) / dt."""
     w = np.empty((len(q), 3))
-    w[1:] = quat_to_rotvec(quat_mul(quat_conj(q[:-1]), q[1:])) / dt
+    w[1:] = quat_relative_rotvec(q[:-1], q[1:]) / dt
     w[0] = w[1] if len(q) > 1 else 0.0
     return w
 
@@ -108,7 +139,7 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
         s = series[role]
         i, u = _bracket(s.t_ns, grid)
         pos = _lerp(s.fields["pos"], i, u)
-        quat = quat_slerp(s.fields["quat"][i], s.fields["quat"][i + 1], u)
+        quat = _slerp(s.t_ns, s.fields["quat"], grid)
         measured[role] = "linvel" in s.fields
         wp, wr, sig_p, sig_r = _pose_windows(s, dt, smooth)
         linvel = _backward_diff(pos, dt)

@@ -10,12 +10,19 @@ pose stream is smoothed only where its noise shows:
 * :func:`window_for` — the shortest odd window whose local-quadratic fit brings
   the velocity noise under a target;
 * :func:`savgol` — zero-phase local polynomial (Savitzky–Golay) smoothing and
-  differentiation, with the ends fitted on one-sided windows.
+  differentiation, a thin wrapper of ``scipy.signal.savgol_filter``
+  (``mode="interp"``: the ends are fitted on one-sided windows).
+
+The noise logic (:func:`noise_sigma`, :func:`window_for`) is the project's own;
+SciPy does the filtering. Orientations are smoothed as sign-continuous (w, x, y, z)
+components (:func:`~amhe_cli.io.quat.quat_make_continuous`) and renormalised by
+the caller (:mod:`~amhe_cli.io.resample`).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.signal import savgol_filter
 
 #: Noise below this is what clean 2 ms simulations show (a simulated push log: base 4e-6 m, 2.5e-5 rad
 #: of real gait motion): leave it. [m] for positions, [rad] for orientations.
@@ -54,15 +61,22 @@ def window_for(sigma: float, dt: float, target: float = TARGET_VEL_SIGMA, clean:
     return w
 
 
-def _coefficients(window: int, order: int, at: int) -> np.ndarray:
-    """(order+1, window) rows: value, first derivative … of the fit, evaluated at sample ``at``."""
-    t = np.arange(window) - at
-    A = np.vander(t, order + 1, increasing=True)  # columns 1, t, t², …
-    return np.linalg.pinv(A)  # row j: coefficient of t^j
-
-
 def savgol(x: np.ndarray, window: int, dt: float, order: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """Zero-phase local-polynomial smoothing of (T, k) samples.
+    """Zero-phase local-polynomial (Savitzky–Golay) smoothing of (T, k) samples along time.
+
+    ``scipy.signal.savgol_filter`` with ``deriv=0`` and ``deriv=1, delta=dt``,
+    ``mode="interp"``: interior samples take the value and slope of a
+    least-squares polynomial of degree ``order`` over the centred window, the
+    first and last ``window // 2`` samples those of the fit over the first /
+    last window.
+
+    Args:
+        x: (T, k) samples at a uniform step (also (T,)).
+        window: window length [samples]; an even one is raised to the next odd.
+            1 (or a series shorter than the window) means no smoothing: ``x`` is
+            returned with its ``np.gradient`` derivative.
+        dt: sample step [s].
+        order: polynomial degree, < window.
 
     Returns:
         (T, k) smoothed values and (T, k) their time derivative [per second].
@@ -72,18 +86,6 @@ def savgol(x: np.ndarray, window: int, dt: float, order: int = 2) -> tuple[np.nd
     window = int(window) | 1
     if window <= 1 or n < window:
         return x.copy(), np.gradient(x, dt, axis=0) if n > 1 else np.zeros_like(x)
-    half = window // 2
-    c = _coefficients(window, order, half)
-    # interior: correlate every column with the centred fit's value and slope rows
-    windows = np.lib.stride_tricks.sliding_window_view(x, window, axis=0)  # (n-w+1, k, w)
-    val = np.empty_like(x)
-    der = np.empty_like(x)
-    val[half:n - half] = windows @ c[0]
-    der[half:n - half] = windows @ c[1] / dt
-    # ends: one-sided fits over the first / last window
-    for i in range(half):
-        ci = _coefficients(window, order, i)
-        val[i], der[i] = ci[0] @ x[:window], ci[1] @ x[:window] / dt
-        cj = _coefficients(window, order, window - 1 - i)
-        val[n - 1 - i], der[n - 1 - i] = cj[0] @ x[-window:], cj[1] @ x[-window:] / dt
+    val = savgol_filter(x, window, order, deriv=0, axis=0, mode="interp")
+    der = savgol_filter(x, window, order, deriv=1, delta=dt, axis=0, mode="interp")
     return val, der

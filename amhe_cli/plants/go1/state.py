@@ -27,7 +27,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from amhe_cli.io.quat import quat_conj, quat_mul, quat_to_rotvec, quat_to_yaw
+from amhe_cli.io.quat import quat_relative_rotvec, quat_to_yaw
 from amhe_cli.model.scene import Scene
 
 GRAVITY = np.array([0.0, 0.0, -9.81])
@@ -52,7 +52,7 @@ class _Differentiator:
             dt = stamp - self.last[0]
             if dt > 1e-4:
                 raw = (pos - self.last[1]) / dt
-                w = quat_to_rotvec(quat_mul(quat_conj(self.last[2]), quat)) / dt
+                w = quat_relative_rotvec(self.last[2], quat) / dt
                 a = dt / (self.tau + dt)
                 self.linvel += a * (raw - self.linvel)
                 self.angvel += a * (w - self.angvel)
