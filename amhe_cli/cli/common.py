@@ -68,7 +68,7 @@ def identify_options(f):
                      help="Clip horizon range [s], drawn uniformly."),
         click.option("--popsize", default=12, show_default=True, type=click.IntRange(2, 10000),
                      help="CMA-ES candidates per generation (B)."),
-        click.option("--generations", default=40, show_default=True, type=click.IntRange(1, 100000),
+        click.option("--generations", default=IdentifySettings.max_gen, show_default=True, type=click.IntRange(1, 100000),
                      help="CMA-ES generation limit (it stops earlier once converged; stopping here first "
                           "gives a warning and \"converged\": false in --json)."),
         click.option("--prior-weight", default=1.0, show_default=True, type=click.FloatRange(0),
@@ -241,6 +241,7 @@ def belief_from_result(result: IdentifyResult, problem: Problem, command: str, l
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
             "wall_time_s": round(result.wall_time, 2), "evaluations": result.evaluations,
             "clips": len(result.clips), "generations": len(result.history),
+            "sensors": problem.traj.meta.get("sensors", {}),
         },
     )
 
@@ -279,6 +280,34 @@ def print_summary(result: IdentifyResult, truth: dict | None = None) -> None:
     click.echo(f"{s['clips']} clips, {s['generations']} generations"
                f"{'' if result.converged else ' (stopped by --generations, not converged)'}, "
                f"{s['evaluations']} candidates, {s['wall_time_s']:.1f} s")
+
+
+def sensor_lines(meta: dict) -> list[str]:
+    """What the reader measured about the log's sensors (``meta["sensors"]``), one line per stream and finding."""
+    sens = meta.get("sensors", {})
+    lines = []
+    for role, st in sens.get("streams", {}).items():
+        if "rate_hz" not in st:
+            continue
+        parts = [f"{st['rate_hz']:.4g} Hz", f"{100 * st['dropped_fraction']:.1f} % dropped",
+                 f"jitter {st['jitter_ms']:.2g} ms"]
+        if st.get("latency_ms") is not None:
+            parts.append(f"latency {st['latency_ms']:.2g} ms")
+        if "position_noise_m" in st:
+            parts.append(f"noise {st['position_noise_m'] * 1e3:.2g} mm / {st['orientation_noise_rad'] * 1e3:.2g} mrad")
+        elif "joint_noise_rad" in st:
+            parts.append(f"noise {st['joint_noise_rad'] * 1e3:.2g} mrad")
+        lines.append(f"{role}: " + ", ".join(parts))
+    off = sens.get("time_offset")
+    if off:
+        lines.append(f"pose streams lag the joint states by {off['pose_stamp_lag_s'] * 1e3:+.1f} ms"
+                     + (" (corrected)" if off["applied"] else " (within 3 ms: left)"))
+    gains = sens.get("gains")
+    if gains:
+        kp, kd = np.asarray(gains["kp"]), np.asarray(gains["kd"])
+        lines.append(f"servo gains fitted from the efforts: Kp {kp.min():.3g}–{kp.max():.3g}, Kd {kd.min():.3g}–{kd.max():.3g}"
+                     f" ({'used instead of the logged ones' if gains['used'] == 'fitted' else 'agree with the log'})")
+    return lines
 
 
 def not_converged_warning(result: IdentifyResult) -> str | None:

@@ -8,7 +8,7 @@ from pathlib import Path
 import click
 
 from amhe_cli.cli.common import (check_outputs, default_output, identify_options, log_options, make_settings,
-                                 parse_smooth, print_summary, run_identify, save_outputs)
+                                 parse_smooth, print_summary, run_identify, save_outputs, sensor_lines)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_size, parse_topics
 
@@ -53,6 +53,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         s = result.summary()
         if truth is not None:
             s["truth"] = {k: truth[k] for k in result.space.free if k in truth}
+        s["sensors"] = problem.traj.meta.get("sensors", {})
         s["belief"] = str(out_path)
         if plot_path is not None:
             s["plot"] = str(plot_path)
@@ -60,5 +61,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         return
     click.echo(f"log {log}: {len(problem.traj) * problem.traj.dt:.1f} s, box floor z={problem.scene.config.floor_height:+.3f} m, "
                f"robot floor z={problem.scene.config.robot_floor_height:+.3f} m")
+    for line in sensor_lines(problem.traj.meta):
+        click.echo(f"  {line}")
     print_summary(result, truth=truth)
     click.echo(f"belief written to {out_path}" + (f"; plot to {plot_path}" if plot_path else ""))

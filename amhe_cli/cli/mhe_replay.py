@@ -11,6 +11,7 @@ import numpy as np
 from amhe_cli.cli.common import (check_outputs, default_output, log_options, nominal_prior_text, parse_smooth,
                                  progress_bar)
 from amhe_cli.errors import AmheError
+from amhe_cli.estimation.cost import StateWeights
 from amhe_cli.estimation.problem import load_problem, parse_box_size, parse_topics
 from amhe_cli.model.params import PARAMETERS, parse_names
 
@@ -92,7 +93,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     def run_one(st: MHESettings):
         bar = progress_bar(round(problem.traj.duration, 2), "mhe-replay", quiet or as_json,
                         counter="{n:.1f}/{total:.1f} s of log")
-        with MovingHorizonEstimator(problem.scene, problem.space, st, nthread=threads) as mhe:
+        with MovingHorizonEstimator(problem.scene, problem.space, st, StateWeights.for_log(problem.traj),
+                                    nthread=threads) as mhe:
             res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n))
         bar.close()
         return res

@@ -68,7 +68,11 @@ class IdentifySettings:
         horizon: (min, max) clip horizon [s], drawn uniformly. 0.1–0.2 s: longer
             clips let the optimum slide along the m·μ valley (docs/reference.md#identification).
         popsize: CMA-ES population (candidates per generation, ``B``).
-        max_gen: generation limit.
+        max_gen: generation limit. 30, with the estimate averaged over the last 6
+            means: against 40 generations and the final mean, the same accuracy
+            over 8 seeds × 5 logs (mass error ±5 % on the noisy and mismatched
+            logs either way) and a truer σ (2σ coverage 92 % against 84 %) in
+            0.70 of the time.
         sigma0: initial CMA-ES step in prior-σ units.
         tolx: stop when every coordinate's CMA-ES step is below this, in
             prior-σ units (3e-3: 9 g of mass, 0.0015 of friction at the
@@ -77,19 +81,23 @@ class IdentifySettings:
         seed: seeds clip selection and CMA-ES.
         t_range: (t0, t1) [s] part of the log to use, or None for all of it.
         sigma: state-error σ per group overriding the defaults (``W_x``).
+        average_last: the estimate is the mean of CMA-ES's means over this many
+            last generations (0 or 1: the final mean): on a rough cost the mean
+            jitters by about its search spread from one generation to the next.
     """
 
     params: tuple = DEFAULT_FREE
     n_clips: int = 32
     horizon: tuple = (0.1, 0.2)
     popsize: int = 12
-    max_gen: int = 40
+    max_gen: int = 30
     sigma0: float = 0.3
     tolx: float = 3e-3
     prior_weight: float = 1.0
     seed: int = 0
     t_range: tuple | None = None
     sigma: dict = field(default_factory=dict)
+    average_last: int = 6
 
 
 @dataclass
@@ -177,7 +185,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
     t0 = time.perf_counter()
     rng = np.random.default_rng(settings.seed)
     clips = sample_clips(traj, scene, settings.n_clips, settings.horizon, rng=rng, t_range=settings.t_range)
-    weights = StateWeights(dict(settings.sigma))
+    weights = StateWeights.for_log(traj, dict(settings.sigma))
     with RolloutCost(scene, space, clips, weights, prior_weight=settings.prior_weight, nthread=nthread) as cost:
         p0, s0 = space.mean0, space.std0
         opts = {
@@ -214,19 +222,16 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         # The estimate is CMA-ES's own (rank-weighted) mean: robust to the cost's rough floor, where a
         # least-squares quadratic over the late generations was pulled by far, costly samples (module doc).
         z_mean = np.asarray(es.mean, dtype=float)
+        if settings.average_last > 1:
+            z_mean = np.mean([(np.asarray(h["mean"]) - p0) / s0 for h in history[-settings.average_last:]], axis=0)
         estimate = space.project(p0 + z_mean * s0)[0][0]
         curv = curvature(cost, estimate)  # its centre rollout also gives J at the estimate
         j_est, data = curv.cost, curv.data
         # spread over clip sets: per-clip quadratics over the late generations, resampled over clips
-        late = np.asarray(samples_gen) >= len(history) // 2
-        Zs = np.concatenate(samples_z)[late]
-        Js = np.concatenate(samples_j)[late]
-        Ks = np.concatenate(samples_clip)[late]
-        valley = fit_valley(Zs, Js, z_mean)
-        if valley is not None:
-            minima = bootstrap_minima(Zs, Ks, valley, settings.prior_weight, rng=np.random.default_rng(settings.seed))
-            boot_cov = np.cov((minima * s0).T).reshape(space.dim, space.dim)
-            if np.trace(boot_cov / np.outer(s0, s0)) > np.trace(curv.cov / np.outer(s0, s0)):
+        boot = _clip_set_cov(samples_z, samples_j, samples_clip, samples_gen, z_mean, settings)
+        if boot is not None:
+            boot_cov = boot * np.outer(s0, s0)
+            if np.trace(boot) > np.trace(curv.cov / np.outer(s0, s0)):
                 curv = with_covariance(curv, boot_cov)
         # a search stopped before converging has not narrowed further than its own spread
         search_std = np.asarray(es.result.stds, dtype=float) * s0
@@ -244,6 +249,30 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         settings=settings, wall_time=time.perf_counter() - t0, evaluations=evals,
         converged=converged, stop=stop,
     )
+
+
+def _clip_set_cov(samples_z: list, samples_j: list, samples_clip: list, samples_gen: list, z_mean: np.ndarray,
+                  settings: IdentifySettings) -> np.ndarray | None:
+    """(d, d) covariance, in CMA-ES coordinates, of the optimum over resampled clip sets.
+
+    Per-clip quadratics fitted to the samples of the late half of the
+    generations so far (:func:`~amhe_cli.estimation.surrogate.fit_valley`),
+    bootstrapped over clips (:func:`~amhe_cli.estimation.surrogate.bootstrap_minima`);
+    no rollouts. None with too few samples for a quadratic.
+    """
+    gens = np.asarray(samples_gen)
+    if gens.size == 0:
+        return None
+    late = gens >= (gens.max() + 1) // 2
+    Zs = np.concatenate(samples_z)[late]
+    Js = np.concatenate(samples_j)[late]
+    Ks = np.concatenate(samples_clip)[late]
+    valley = fit_valley(Zs, Js, z_mean)
+    if valley is None:
+        return None
+    minima = bootstrap_minima(Zs, Ks, valley, settings.prior_weight, rng=np.random.default_rng(settings.seed))
+    d = z_mean.size
+    return np.cov(minima.T).reshape(d, d)
 
 
 def settings_dict(settings: IdentifySettings) -> dict:

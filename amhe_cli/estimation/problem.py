@@ -11,9 +11,13 @@ from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
+import warnings
+
 import yaml
 
 from amhe_cli.estimation.belief import Belief
+from amhe_cli.estimation.gains import applied_gains, fit_gains
+from amhe_cli.estimation.timing import APPLY_ABOVE, mocap_offset
 from amhe_cli.errors import AmheError
 from amhe_cli.io.reader import read_log
 from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
@@ -96,6 +100,23 @@ class Problem:
     prior_source: str
 
 
+def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
+    """The scene with the PD gains that acted, fitted from the log's joint efforts where it has them
+    (:mod:`~amhe_cli.estimation.gains`); the fit goes into ``traj.meta["sensors"]["gains"]``."""
+    fit = fit_gains(traj)
+    if fit is None:
+        return config
+    kp, kd, warns = applied_gains(traj, fit)
+    for text in warns:
+        warnings.warn(text, stacklevel=3)
+    traj.meta.setdefault("sensors", {})["gains"] = {
+        **fit.to_dict(), "logged_kp": None if traj.kp is None else traj.kp.tolist(),
+        "logged_kd": None if traj.kd is None else traj.kd.tolist(), "used": "fitted" if warns else "logged"}
+    if kp is None:
+        return config
+    return replace(config, kp=tuple(float(x) for x in kp), kd=tuple(float(x) for x in kd))
+
+
 def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None, prior: str | None = None,
                  box_size: tuple | None = None, base_config: SceneConfig | None = None,
                  smooth: int | str = "auto") -> Problem:
@@ -115,6 +136,16 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
     """
     base = base_config or SceneConfig()
     traj = read_log(log, topics=topics or None, dt=base.timestep, smooth=smooth)
+    lag = mocap_offset(traj, Scene(base))
+    if lag is not None and abs(lag.offset) > APPLY_ABOVE:
+        warnings.warn(f"the pose streams lag the joint states by {lag.offset * 1e3:+.1f} ms (stance feet slide "
+                      f"otherwise): shifted them by {-lag.offset * 1e3:+.1f} ms", stacklevel=2)
+        with warnings.catch_warnings():  # its warnings were issued by the first read
+            warnings.simplefilter("ignore")
+            traj = read_log(log, topics=topics or None, dt=base.timestep, smooth=smooth,
+                            time_offset={"base": -lag.offset, "box": -lag.offset})
+    if lag is not None:
+        traj.meta["sensors"]["time_offset"] = {**lag.to_dict(), "applied": abs(lag.offset) > APPLY_ABOVE}
     if len(traj) < 10:
         raise AmheError(f"{log} holds only {len(traj)} samples on the {base.timestep * 1e3:g} ms grid: "
                         "expected at least a second of overlapping joint states, base, box and commands")
@@ -126,6 +157,7 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
             box_size = tuple(belief.scene["box_size"])
     config = infer_scene_config(traj, replace(base, box_mass=float(values.get("box_mass", base.box_mass))),
                                 box_size=box_size)
+    config = _servo_from_efforts(traj, config)
     scene = Scene(config)
     space = ParameterSpace(scene, free=params if params is not None else DEFAULT_FREE,
                            prior=values, prior_std={k: v for k, v in stds.items() if v})

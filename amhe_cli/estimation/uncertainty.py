@@ -120,3 +120,24 @@ def _cov_std_corr(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
     """``curv`` with its covariance (and std, correlation) replaced by ``cov`` (d, d)."""
     return Curvature(curv.point, curv.fisher, *_cov_std_corr(cov), curv.cost, curv.data, curv.residual_scale)
+
+
+def coverage(estimate: np.ndarray, std: np.ndarray, truth: np.ndarray, k: float = 2.0) -> np.ndarray:
+    """Whether each stated interval holds the truth: ``|estimate − truth| ≤ k σ``.
+
+    The check of honest uncertainty over seeds and logs: with Gaussian errors
+    and a right σ, k = 2 holds the truth in 95 % of runs.
+
+    Args:
+        estimate, std, truth: (N, d) or broadcastable arrays (runs × parameters).
+        k: interval half-width in σ.
+    Returns:
+        (N, d) bool; its mean over runs is the coverage.
+
+    Raises:
+        ValueError: a negative or non-finite σ.
+    """
+    std = np.asarray(std, dtype=float)
+    if np.any(~np.isfinite(std)) or np.any(std < 0):
+        raise ValueError("coverage needs finite, non-negative standard deviations")
+    return np.abs(np.asarray(estimate, dtype=float) - np.asarray(truth, dtype=float)) <= k * std

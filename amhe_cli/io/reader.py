@@ -29,6 +29,7 @@ from amhe_cli.io.trajectory import GO1_JOINTS, Trajectory
 # the steps' modules (see the module docstring)
 from amhe_cli.io.joints import canonical_joint_name, match_joints
 from amhe_cli.io.logfile import _one_line, _open_log, _sha256
+from amhe_cli.io.sensors import stream_report
 from amhe_cli.io.resample import _resample
 from amhe_cli.io.roles import GAINS_ROLE, REQUIRED_ROLES, _short_type, _topics_present, assign_roles
 from amhe_cli.io.unpack import _gains, _Series, _Unpacker
@@ -58,6 +59,7 @@ def read_log(
     dt: float = 0.002,
     joint_names_map: dict[str, str] | None = None,
     smooth: int | str = "auto",
+    time_offset: dict[str, float] | None = None,
 ) -> Trajectory:
     """Read a log and resample it onto a uniform grid in MuJoCo conventions.
 
@@ -76,6 +78,9 @@ def read_log(
             int N > 1 forces an N-sample window on every pose; 0 turns it off.
             Logged velocities are kept as logged; velocities differentiated
             from smoothed poses come from the fit's slope.
+        time_offset: role -> seconds added to that role's message times
+            before resampling (e.g. the mocap-to-joint-state offset that
+            :func:`~amhe_cli.estimation.sensors.mocap_offset` measured).
 
     Time: a topic's header stamps are used when any of them is nonzero,
     otherwise its log (receive) times; the grid starts where the last required
@@ -88,7 +93,9 @@ def read_log(
         holds ``path``, ``sha256``, ``format``, ``topics`` (role -> topic),
         ``metadata`` (MCAP metadata records), ``warnings``, ``t0_ns`` (absolute
         time of ``t = 0``), ``joint_names`` (role -> names as logged) and
-        ``gains_source``. Each warning is also issued with ``warnings.warn``.
+        ``gains_source`` and ``sensors``: ``{"streams": role -> rate, drops,
+        jitter, latency, noise}`` (:func:`~amhe_cli.io.sensors.stream_report`)
+        and ``time_offset_s`` (role -> applied shift). Each warning is also issued with ``warnings.warn``.
 
     Raises:
         AmheError: missing path, not a log, a required role missing or
@@ -159,6 +166,12 @@ def read_log(
                 f"topic '{series[role].topic}' for role '{role}' has {len(series[role].t_ns)} usable "
                 f"message(s): expected at least 2"
             )
+    meta["sensors"] = {"streams": {r: stream_report(series[r]) for r in REQUIRED_ROLES}}
+    if time_offset:
+        for role, shift in time_offset.items():
+            if role in series and shift:
+                series[role].t_ns = series[role].t_ns + int(round(shift * 1e9))
+        meta["sensors"]["time_offset_s"] = {r: float(v) for r, v in time_offset.items()}
     traj = _resample(series, dt, dt_ns, smooth, meta)
     kp, kd, source = _gains(series, meta, warns, joint_names_map)
     traj.kp, traj.kd = kp, kd

@@ -133,6 +133,9 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
     measured["joint_states"] = "dq" in js.fields
     out["joint_vel"] = _lerp(js.fields["dq"], i, u) if "dq" in js.fields else _backward_diff(out["joint_pos"], dt)
     observed["joint_states"] = _observed_interp(js.t_ns, grid, js.period_ns())
+    # efforts that are all zero are a field left unfilled, not a measurement
+    if "tau" in js.fields and np.abs(js.fields["tau"]).max() > 1e-9:
+        out["joint_effort"] = _lerp(js.fields["tau"], i, u)
 
     # Free bodies.
     for role in ("base", "box"):

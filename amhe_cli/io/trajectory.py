@@ -64,6 +64,8 @@ class Trajectory:
         ctrl: (T, 12) joint position targets [rad] held during step ``i``.
         kp: (12,) position gains [N·m/rad] if the log carries them, else None.
         kd: (12,) velocity gains [N·m·s/rad] if the log carries them, else None.
+        joint_effort: (T, 12) measured joint torques [N·m] (``JointState.effort``,
+            a LowState's ``tauEst``) where the log carries them, else None.
         observed: role name -> (T,) bool, True where that role had a message
             within the resampling tolerance (False inside drop-outs/gaps).
             Roles: ``joint_states``, ``base``, ``box``, ``joint_commands``.
@@ -88,6 +90,7 @@ class Trajectory:
     ctrl: np.ndarray
     kp: np.ndarray | None = None
     kd: np.ndarray | None = None
+    joint_effort: np.ndarray | None = None
     observed: dict[str, np.ndarray] = field(default_factory=dict)
     measured_velocity: dict[str, bool] = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
@@ -107,6 +110,10 @@ class Trajectory:
                 if val.shape != (12,):
                     raise ValueError(f"Trajectory.{name} has shape {val.shape}, expected (12,)")
                 setattr(self, name, val)
+        if self.joint_effort is not None:
+            self.joint_effort = np.asarray(self.joint_effort, dtype=float)
+            if self.joint_effort.shape != (n, 12):
+                raise ValueError(f"Trajectory.joint_effort has shape {self.joint_effort.shape}, expected {(n, 12)}")
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -128,6 +135,7 @@ class Trajectory:
         kw = {name: getattr(self, name)[start:stop] for name in SIGNALS}
         return Trajectory(
             t=self.t[start:stop], dt=self.dt, kp=self.kp, kd=self.kd,
+            joint_effort=None if self.joint_effort is None else self.joint_effort[start:stop],
             observed={k: v[start:stop] for k, v in self.observed.items()},
             measured_velocity=dict(self.measured_velocity), meta=self.meta, **kw,
         )

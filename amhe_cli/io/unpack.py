@@ -32,13 +32,16 @@ class _Series:
 
     ``t_ns``: (N,) int64 message times. ``fields``: name -> (N, k) float array,
     e.g. ``pos`` (N, 3), ``quat`` (N, 4) wxyz, ``linvel`` (N, 3) world frame,
-    ``angvel`` (N, 3) body frame, ``q``/``dq`` (N, 12) canonical joint order.
+    ``angvel`` (N, 3) body frame, ``q``/``dq`` (N, 12) canonical joint order,
+    ``tau`` (N, 12) joint efforts [N·m] where every message carries them.
     """
 
     topic: str
     msgtype: str
     t_ns: np.ndarray
     fields: dict[str, np.ndarray]
+    #: median (log time − header stamp) [ns]: the transport latency, None without header stamps
+    latency_ns: float | None = None
 
     def period_ns(self) -> float:
         """Median spacing of the messages [ns]."""
@@ -147,10 +150,14 @@ class _Unpacker:
             if self.role == "joint_states":
                 vel = np.asarray(msg.velocity, dtype=float)
                 self._put("velocity", vel[idx] if ok and len(vel) == len(pos) else None)
+                eff = np.asarray(msg.effort, dtype=float)
+                self._put("effort", eff[idx] if ok and len(eff) == len(pos) else None)
         elif kind in _LOWSTATE_TYPES:
             motors = _motors(msg, "state")
             self._put("motorState.q", [m.q for m in motors] if len(motors) == 12 else nan12)
             self._put("motorState.dq", [m.dq for m in motors] if len(motors) == 12 else nan12)
+            self._put("motorState.tauEst", [getattr(m, "tauEst", getattr(m, "tau_est", np.nan)) for m in motors]
+                      if len(motors) == 12 else None)
         elif kind in _LOWCMD_TYPES:
             motors = _motors(msg, "cmd")
             ok = len(motors) == 12
@@ -182,13 +189,14 @@ class _Unpacker:
         n = len(self.t)
         if n == 0:
             raise AmheError(f"topic '{self.topic}' for role '{self.role}' has no messages")
-        vel = self.rows.pop("velocity", None)
+        optional = {k: self.rows.pop(k, None) for k in ("velocity", "effort", "motorState.tauEst")}
         if "data" in self.rows:  # arrays of varying length: rows unlike the first are bad
             size = len(self.rows["data"][0])
             self.rows["data"] = [r if len(r) == size else np.full(size, np.nan) for r in self.rows["data"]]
         arrays = {k: np.asarray(v, dtype=float) for k, v in self.rows.items()}
-        if vel is not None and all(v is not None for v in vel):
-            arrays["velocity"] = np.asarray(vel, dtype=float)
+        for key, rows in optional.items():  # kept only where every message has them
+            if rows is not None and all(r is not None for r in rows):
+                arrays[key] = np.asarray(rows, dtype=float)
         bad = np.zeros(n, dtype=bool)
         worst, worst_count = "", 0
         for key, arr in arrays.items():
@@ -213,7 +221,9 @@ class _Unpacker:
         # Header stamps are the measurement times; a topic whose stamps are all
         # zero (not filled in) falls back to the log (receive) times.
         stamps = np.asarray(self.stamps, dtype=np.int64)
-        t = (stamps if stamps.any() else np.asarray(self.t, dtype=np.int64))[keep]
+        log_t = np.asarray(self.t, dtype=np.int64)
+        t = (stamps if stamps.any() else log_t)[keep]
+        latency = float(np.median(log_t[keep] - stamps[keep])) if stamps.any() else None
         arrays = {k: v[keep] for k, v in arrays.items()}
         order = np.argsort(t, kind="stable")
         t = t[order]
@@ -224,7 +234,7 @@ class _Unpacker:
             self.warns.append(f"{int((~last).sum())} messages on '{self.topic}' repeat a time stamp; kept the last")
             t = t[last]
             arrays = {k: v[last] for k, v in arrays.items()}
-        return _Series(self.topic, self.full_type, t, self._convert(arrays))
+        return _Series(self.topic, self.full_type, t, self._convert(arrays), latency)
 
     def _convert(self, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Rename fields to role-independent names in MuJoCo conventions."""
@@ -233,9 +243,14 @@ class _Unpacker:
             out = {"q": a["position"]}
             if "velocity" in a:
                 out["dq"] = a["velocity"]
+            if "effort" in a:
+                out["tau"] = a["effort"]
             return out
         if kind in _LOWSTATE_TYPES:
-            return {"q": a["motorState.q"], "dq": a["motorState.dq"]}
+            out = {"q": a["motorState.q"], "dq": a["motorState.dq"]}
+            if "motorState.tauEst" in a:
+                out["tau"] = a["motorState.tauEst"]
+            return out
         if kind in _LOWCMD_TYPES:
             return {"q": a["motorCmd.q"], "kp": a["Kp"], "kd": a["Kd"]}
         if kind == "std_msgs/Float64MultiArray":

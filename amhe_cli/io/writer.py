@@ -261,7 +261,7 @@ class McapLog:
                 self.write_message(TOPIC_JOINT_STATES, _JOINT_STATE, ns, {
                     "header": _header(ns, "base"), "name": names,
                     "position": traj.joint_pos[i].tolist(), "velocity": traj.joint_vel[i].tolist(),
-                    "effort": [],
+                    "effort": [] if traj.joint_effort is None else traj.joint_effort[i].tolist(),
                 })
             if obs["base"][i]:
                 self.write_message(TOPIC_ODOM, _ODOMETRY, ns, {

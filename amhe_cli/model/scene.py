@@ -242,6 +242,25 @@ def resting_offsets(scene: "Scene") -> tuple[float, float]:
     return feet, box
 
 
+#: The bundled model's joint PD gains (models/go1.xml) [N·m/rad], [N·m·s/rad].
+DEFAULT_KP = 55.0
+DEFAULT_KD = 3.0
+
+
+def servo_torque(model: mujoco.MjModel, ctrl: np.ndarray, q: np.ndarray, dq: np.ndarray) -> np.ndarray:
+    """Joint torques (…, nu) [N·m] the position servos apply for targets ``ctrl`` at joint state ``q``, ``dq``.
+
+    ``clip(kp (ctrl − q) − kd dq, forcerange)`` — what MuJoCo's position actuator
+    computes during the step that starts at that state; all arrays (…, nu) in
+    actuator order.
+    """
+    kp = model.actuator_gainprm[:, 0]
+    tau = kp * np.asarray(ctrl) + model.actuator_biasprm[:, 1] * np.asarray(q) + model.actuator_biasprm[:, 2] * np.asarray(dq)
+    lo, hi = model.actuator_forcerange[:, 0], model.actuator_forcerange[:, 1]
+    limited = model.actuator_forcelimited.astype(bool)
+    return np.where(limited, np.clip(tau, lo, hi), tau)
+
+
 def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
     """Write joint PD gains into the position actuators of ``model`` (in place).
 
@@ -297,7 +316,7 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
                       condim=3, friction=[r.mu, r.mu, 0.005, 0.0001, 0.0001])
     model = spec.compile()
     if cfg.kp is not None or cfg.kd is not None:
-        set_pd_gains(model, cfg.kp if cfg.kp is not None else 55.0, cfg.kd if cfg.kd is not None else 3.0)
+        set_pd_gains(model, cfg.kp if cfg.kp is not None else DEFAULT_KP, cfg.kd if cfg.kd is not None else DEFAULT_KD)
     return model
 
 
