@@ -62,7 +62,9 @@ def _estimate_band(ax, t: np.ndarray, v: np.ndarray, sd: np.ndarray, label: str)
 
 #: Plain names and units of the parameters on plots.
 _PRETTY = {"box_mass": ("box mass", "kg"), "box_friction": ("box–floor μ", "-"),
-           "box_inertia": ("box inertia", "kg·m²"), "robot_box_friction": ("robot–box μ", "-")}
+           "box_inertia": ("box inertia", "kg·m²"), "robot_box_friction": ("robot–box μ", "-"),
+           "robot_kp": ("robot Kp", "N·m/rad"), "robot_kd": ("robot Kd", "N·m·s/rad"),
+           "trunk_payload": ("trunk payload", "kg")}
 
 
 def _pretty(name: str) -> tuple[str, str]:

@@ -41,7 +41,8 @@ from amhe_cli.model.scene import Scene
 from amhe_cli.io.trajectory import Trajectory
 
 #: Default ``W_p`` pull standard deviations per parameter (physical units; inertia as shape ratio).
-DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robot_box_friction": 0.05}
+DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robot_box_friction": 0.05,
+                "robot_kp": 2.0, "robot_kd": 0.2, "trunk_payload": 0.2}
 
 
 @dataclass

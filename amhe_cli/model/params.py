@@ -66,8 +66,22 @@ PARAMETERS: dict[str, Parameter] = {
         Parameter("robot_box_friction", "1", 1, (0.05,), (2.0,), (0.3,),
                   "robot-box sliding friction coefficient, feet excepted (nuisance; also sets the "
                   "robot body's friction against the floor, which only matters if it falls)"),
+        Parameter("robot_kp", "N*m/rad", 1, (5.0,), (300.0,), (8.0,),
+                  "joint position gain the robot's servos applied, mean over the 12 joints (nuisance; "
+                  "the joints keep their ratios to the scene's gains)"),
+        Parameter("robot_kd", "N*m*s/rad", 1, (0.1,), (20.0,), (1.0,),
+                  "joint velocity gain the robot's servos applied, mean over the 12 joints (nuisance)"),
+        Parameter("trunk_payload", "kg", 1, (-2.0,), (10.0,), (1.0,),
+                  "mass carried on the trunk beyond the model's, a point mass at the trunk's centre of "
+                  "mass (nuisance: a battery, a sensor)"),
     )
 }
+
+#: Parameters whose default prior σ is this fraction of their nominal value (gains differ by robot).
+RELATIVE_STD = {"robot_kp": 0.15, "robot_kd": 0.3}
+
+#: The robot-side nuisance parameters: freed next to the box's when the robot differs from its model.
+ROBOT_PARAMETERS = ("robot_box_friction", "robot_kp", "robot_kd", "trunk_payload")
 
 DEFAULT_FREE = ("box_mass", "box_inertia", "box_friction")
 
@@ -125,11 +139,18 @@ class ParameterSpace:
         # robot-box coefficient under MuJoCo's max rule (the box geom's own friction is 0)
         body = m.geom_bodyid
         self._robot_geoms = np.flatnonzero((body != 0) & (body != scene.box_body) & (m.geom_priority == 0))
+        self._trunk = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "trunk")
+        self._trunk_mass = float(m.body_mass[self._trunk])
+        self._kp0 = m.actuator_gainprm[:, 0].copy()  # the scene's (logged or fitted) gains
+        self._kd0 = -m.actuator_biasprm[:, 2].copy()
         nominal = {
             "box_mass": np.array([m.body_mass[scene.box_body]]),
             "box_inertia": m.body_inertia[scene.box_body].copy(),
             "box_friction": np.array([m.pair_friction[scene.region_pairs[0], 0]]),
             "robot_box_friction": np.array([m.geom_friction[self._robot_geoms[0], 0]]),
+            "robot_kp": np.array([self._kp0.mean()]),
+            "robot_kd": np.array([self._kd0.mean()]),
+            "trunk_payload": np.array([0.0]),
         }
         self.prior_values: dict[str, np.ndarray] = {}
         prior = prior or {}
@@ -161,8 +182,10 @@ class ParameterSpace:
                 hi += [INERTIA_RATIO_BOUNDS[1]] * 3
             else:
                 mean0 += list(self.prior_values[name])
-                std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, p.prior_std), dtype=float), (p.size,)))
-                scale += list(p.prior_std)
+                default_std = p.prior_std if name not in RELATIVE_STD else \
+                    tuple(RELATIVE_STD[name] * abs(v) for v in nominal[name])
+                std0 += list(np.broadcast_to(np.asarray(prior_std.get(name, default_std), dtype=float), (p.size,)))
+                scale += list(default_std)
                 lo += list(p.lower)
                 hi += list(p.upper)
             self.labels += [name] if p.size == 1 else [f"{name}_{i}" for i in range(p.size)]
@@ -279,6 +302,11 @@ class ParameterSpace:
         model.pair_friction[self.scene.region_pairs, 0] = mu
         model.pair_friction[self.scene.region_pairs, 1] = mu
         model.geom_friction[self._robot_geoms, 0] = vals["robot_box_friction"]
+        kp = self._kp0 * (vals["robot_kp"] / self._kp0.mean())
+        model.actuator_gainprm[:, 0] = kp
+        model.actuator_biasprm[:, 1] = -kp
+        model.actuator_biasprm[:, 2] = -self._kd0 * (vals["robot_kd"] / self._kd0.mean())
+        model.body_mass[self._trunk] = self._trunk_mass + vals["trunk_payload"]
         data = self._scratch.get(id(model))
         if data is None:
             data = self._scratch[id(model)] = mujoco.MjData(model)

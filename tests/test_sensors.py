@@ -1,0 +1,167 @@
+"""Real sensor data: noise and timing measured from a log, the servo gains fitted from efforts,
+robot-side nuisance parameters, and the coverage check of stated uncertainty.
+
+Every check uses a log generated here with a known answer: a simulated Go1
+whose servo applies other gains than its log states, a box whose pose stream
+carries white noise of a known σ, pose streams shifted by a known time.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.estimation.gains import applied_gains, fit_gains
+from amhe_cli.estimation.identify import IdentifySettings, identify
+from amhe_cli.estimation.problem import example_logs, load_problem
+from amhe_cli.estimation.timing import mocap_offset
+from amhe_cli.estimation.uncertainty import coverage
+from amhe_cli.estimation.cost import StateWeights, DEFAULT_SIGMA
+from amhe_cli.io.reader import read_log
+from amhe_cli.io.sensors import stream_report
+from amhe_cli.io.unpack import _Series
+from amhe_cli.io.writer import write_mcap
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.scene import Scene, SceneConfig, set_pd_gains
+from amhe_cli.plants.sim import SimPlant
+
+BOX_XY = (0.28 + 0.19 + 0.01, 0.0)
+TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
+
+
+def _lunge_log(kp=55.0, kd=3.0):
+    """A lunge probe (three head bumps) by a robot whose servo applies ``kp``/``kd``; its
+    trajectory states the nominal 55/3, as a lab's command log would."""
+    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+    set_pd_gains(plant.model, kp, kd)
+    q, _ = plant.scene.standing_state(box_xy=BOX_XY)
+    plant.reset(q)
+    for u in lunge_schedule():
+        plant.step(u)
+    traj = plant.trajectory()
+    traj.kp, traj.kd = np.full(12, 55.0), np.full(12, 3.0)
+    return traj
+
+
+@pytest.fixture(scope="module")
+def stiff_log():
+    return _lunge_log(kp=63.0, kd=2.4)
+
+
+def test_gain_fit_recovers_the_applied_gains(stiff_log):
+    fit = fit_gains(stiff_log)
+    assert fit.ok.all()
+    np.testing.assert_allclose(fit.kp, 63.0, rtol=1e-3)
+    np.testing.assert_allclose(fit.kd, 2.4, rtol=1e-3)
+    kp, kd, warns = applied_gains(stiff_log, fit)
+    np.testing.assert_allclose(kp, 63.0, rtol=1e-3)
+    np.testing.assert_allclose(kd, 2.4, rtol=1e-3)
+    assert len(warns) == 1 and "disagree" in warns[0] and "55" in warns[0] and "63" in warns[0]
+
+
+def test_gain_fit_agrees_silently_and_needs_efforts():
+    traj = _lunge_log()
+    kp, kd, warns = applied_gains(traj, fit_gains(traj))
+    assert warns == [] and np.allclose(kp, 55.0) and np.allclose(kd, 3.0)
+    traj.joint_effort = None
+    assert fit_gains(traj) is None
+
+
+def test_fitted_gains_reach_the_scene_through_a_written_log(stiff_log, tmp_path):
+    path = write_mcap(tmp_path / "stiff.mcap", stiff_log)
+    with pytest.warns(UserWarning, match="disagree"):
+        problem = load_problem(str(path))
+    np.testing.assert_allclose(problem.scene.model.actuator_gainprm[:, 0], 63.0, rtol=1e-3)
+    np.testing.assert_allclose(-problem.scene.model.actuator_biasprm[:, 2], 2.4, rtol=1e-3)
+    assert problem.traj.meta["sensors"]["gains"]["used"] == "fitted"
+
+
+def test_stream_report_measures_rate_drops_jitter_latency_and_noise():
+    rng = np.random.default_rng(3)
+    period = 1e9 / 120
+    k = np.arange(2400)
+    k = k[rng.random(k.size) > 0.03]  # 3 % dropped
+    stamps = (k * period + rng.uniform(-1e6, 1e6, k.size)).astype(np.int64)  # ±1 ms jitter
+    t = stamps * 1e-9
+    pos = np.column_stack([0.3 * np.sin(t), 0.2 * t, 0.19 + 0 * t]) + rng.normal(0, 0.0015, (k.size, 3))
+    quat = np.tile([1.0, 0, 0, 0], (k.size, 1))
+    s = _Series("/box", "geometry_msgs/msg/PoseStamped", stamps, {"pos": pos, "quat": quat}, latency_ns=4e6)
+    r = stream_report(s)
+    assert r["rate_hz"] == pytest.approx(120.0, rel=1e-3)
+    assert r["dropped_fraction"] == pytest.approx(0.03, abs=0.01)
+    assert 0.4 < r["jitter_ms"] < 1.0  # uniform ±1 ms: σ 0.58 ms (robust MAD scale 0.74)
+    assert r["latency_ms"] == pytest.approx(4.0)
+    assert r["position_noise_m"] == pytest.approx(0.0015, rel=0.15)
+    assert r["orientation_noise_rad"] < 1e-9
+
+
+def test_noise_is_measured_through_a_log_and_widens_W_x(tmp_path):
+    traj = _lunge_log()
+    rng = np.random.default_rng(0)
+    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, 0.003, traj.box_pos.shape), meta={})
+    path = write_mcap(tmp_path / "noisy.mcap", noisy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the smoothing notice
+        read = read_log(path)
+    box = read.meta["sensors"]["streams"]["box"]
+    assert box["position_noise_m"] == pytest.approx(0.003, rel=0.15)
+    assert read.meta["sensors"]["streams"]["base"]["position_noise_m"] < 1e-4
+    w = StateWeights.for_log(read)
+    assert w.sigma["box_pos"] == pytest.approx(np.hypot(DEFAULT_SIGMA["box_pos"], box["position_noise_m"]))
+    assert w.sigma["box_linvel"] == np.inf  # differentiated from smoothed poses: left to the positions
+    assert w.sigma["base_pos"] == pytest.approx(DEFAULT_SIGMA["base_pos"], rel=1e-3)
+    assert StateWeights.for_log(read, {"box_pos": 0.01}).sigma["box_pos"] == 0.01  # --sigma wins
+
+
+@pytest.mark.parametrize("shift", [0.0, 0.012, -0.005])
+def test_pose_stream_lag_is_found_from_the_stance_feet(shift):
+    log = example_logs()[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        traj = read_log(log, time_offset={"base": shift, "box": shift})
+    fit = mocap_offset(traj, Scene())
+    assert fit is not None and fit.samples > 500
+    assert fit.offset == pytest.approx(shift, abs=0.0025)
+
+
+def test_a_free_robot_side_parameter_is_recovered():
+    """The robot's servo is stiffer than its log says; freeing ``robot_kp`` finds it, with the box."""
+    stiff_log = _lunge_log(kp=63.0)
+    scene = Scene(SceneConfig())  # the logged 55/3
+    free = ("box_mass", "box_friction", "robot_kp")
+    space = ParameterSpace(scene, free=free)
+    assert space.mean0[2] == pytest.approx(55.0) and space.std0[2] == pytest.approx(0.15 * 55.0)
+    res = identify(stiff_log, scene, space, IdentifySettings(params=free, n_clips=12, max_gen=30, popsize=10),
+                   nthread=2)
+    mass, mu, kp = res.estimate
+    assert kp == pytest.approx(63.0, rel=0.05), res.estimate
+    assert mass == pytest.approx(5.0, rel=0.05) and mu == pytest.approx(0.45, abs=0.03)
+
+
+def test_nuisance_parameters_write_the_model():
+    scene = Scene(SceneConfig(kp=tuple([50.0] * 6 + [60.0] * 6)))
+    space = ParameterSpace(scene, free=("robot_kp", "robot_kd", "trunk_payload"))
+    m = scene.model
+    trunk = m.body("trunk").id
+    before = float(m.body_mass[trunk])
+    space.write(m, np.array([66.0, 4.5, 0.5]))
+    np.testing.assert_allclose(m.actuator_gainprm[:, 0], [60.0] * 6 + [72.0] * 6)  # ratios kept, mean 66
+    np.testing.assert_allclose(-m.actuator_biasprm[:, 1], m.actuator_gainprm[:, 0])
+    np.testing.assert_allclose(-m.actuator_biasprm[:, 2], 4.5)
+    assert m.body_mass[trunk] == pytest.approx(before + 0.5)
+    space.write(m, space.mean0)
+    assert m.body_mass[trunk] == pytest.approx(before)
+
+
+def test_coverage_counts_intervals_that_hold_the_truth():
+    est = np.array([[1.0, 0.5], [1.35, 0.45], [0.55, 0.515]])
+    std = np.array([[0.1, 0.01], [0.1, 0.03], [0.3, 0.01]])
+    got = coverage(est, std, np.array([1.1, 0.5]))
+    np.testing.assert_array_equal(got, [[True, True], [False, True], [True, True]])
+    assert got[:, 0].mean() == pytest.approx(2 / 3)
+    with pytest.raises(ValueError):
+        coverage(est, -std, np.array([1.1, 0.5]))
