@@ -1,88 +1,159 @@
-"""Accuracy and wall time of ``identify`` across seeds and settings, against ground truth.
+"""Accuracy, honesty of the stated σ (2σ coverage) and wall time of ``identify``, against ground truth.
 
 Usage::
 
-    python benchmarks/identify_accuracy.py LOG TRUTH.yaml [--seeds 4] [--jobs 4] [--threads 2]
-        [--setting name:clips,popsize,generations ...] [--params box_mass,box_friction]
+    python benchmarks/identify_accuracy.py LOG [LOG ...] [--seeds 8] [--jobs 4] [--threads 1]
+        [--params box_mass,box_inertia,box_friction] [--out rows.jsonl] [--identify-arg --clips=24 ...]
 
-TRUTH.yaml is either an amhe belief (``parameters.box_mass.value``,
-``parameters.box_friction.value``) or a ground-truth YAML holding
-``box: {mass_schedule: [{mass_kg: M}, ...]}`` and
-``floor: {regions: [{mu_sliding_box_floor: MU}, ...]}`` (the first entry of each
-is used). For logs amhe wrote, the truth is also in their ``amhe_truth``
-metadata record (docs/log_schema.md#metadata-records). Each (setting, seed) runs in its own process with ``--threads``
-rollout threads; the table gives mean ± std over seeds of the mass error [%],
-the friction error, and the wall time. Last line: ``worst_mass_err_pct=… worst_mu_err=…``.
+The truth of each LOG is read from ``<LOG stem>.truth.yaml`` beside it
+(``box.mass_schedule[0]`` mass and inertia, ``floor.regions[0]`` friction), from
+an amhe belief given as ``LOG=TRUTH.yaml``, or from the ``amhe_truth`` metadata
+record that logs amhe simulates carry. Each (log, seed) runs ``amhe identify``'s
+code path (``load_problem`` + ``identify`` with the CLI defaults) in its own
+process with ``--threads`` rollout threads; each finished run is appended to
+``--out`` (JSON lines) at once, so a cut-off benchmark keeps its rows.
+
+Per log, the table gives the mass error [%] (mean ± std, median, worst), the
+worst friction error, the **2σ coverage** — the fraction of (run, parameter)
+values whose stated interval ``estimate ± 2σ`` holds the truth, for mass,
+friction and the three moments of inertia
+(:func:`~amhe_cli.estimation.uncertainty.coverage`) — and the median wall
+time. The last lines give the coverage and the worst errors over all logs.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
 
 import numpy as np
 import yaml
 
 
-def truth_of(path: str) -> tuple[float, float]:
-    d = yaml.safe_load(open(path))
-    if "parameters" in d:  # an amhe belief
-        return float(d["parameters"]["box_mass"]["value"]), float(d["parameters"]["box_friction"]["value"])
-    return float(d["box"]["mass_schedule"][0]["mass_kg"]), float(d["floor"]["regions"][0]["mu_sliding_box_floor"])
+def truth_of(log: str, given: str | None) -> dict:
+    """name -> true value (box_mass, box_friction, box_inertia when known)."""
+    path = Path(given) if given else Path(log).with_name(Path(log).stem + ".truth.yaml")
+    if path.is_file():
+        d = yaml.safe_load(path.read_text())
+        if "parameters" in d:  # an amhe belief
+            return {k: d["parameters"][k]["value"] for k in ("box_mass", "box_friction", "box_inertia")
+                    if k in d["parameters"]}
+        sched = d["box"]["mass_schedule"][0]
+        out = {"box_mass": float(sched["mass_kg"]),
+               "box_friction": float(d["floor"]["regions"][0]["mu_sliding_box_floor"])}
+        if "inertia_diag_kgm2" in sched:
+            out["box_inertia"] = [float(x) for x in sched["inertia_diag_kgm2"]]
+        return out
+    import warnings
+    from amhe_cli.io.reader import read_log
+    from amhe_cli.io.truth import metadata_truth
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        truth = metadata_truth(read_log(log))
+    if not truth:
+        sys.exit(f"no truth for {log}: expected {path.name} beside it, LOG=TRUTH.yaml or an amhe_truth record")
+    return {k: truth[k] for k in ("box_mass", "box_friction", "box_inertia") if k in truth}
 
 
-def one(job):
-    log, params, clips, popsize, gens, seed, threads = job
+def one(job: dict) -> dict:
+    import warnings
     from amhe_cli.estimation.identify import IdentifySettings, identify
-    from amhe_cli.model.params import parse_names
     from amhe_cli.estimation.problem import load_problem
-    free = parse_names(params)
-    pr = load_problem(log, params=free)
+    from amhe_cli.model.params import parse_names
+    warnings.simplefilter("ignore")
+    names = {"clips": "n_clips", "generations": "max_gen", "popsize": "popsize", "horizon": "horizon"}
+    over = {names.get(k, k): (tuple(float(x) for x in str(v).split(",")) if k == "horizon" else v)
+            for k, v in job["identify"].items()}
+    settings = IdentifySettings(params=parse_names(job["params"]), seed=job["seed"], sigma=job.get("sigma", {}),
+                                **over)
     t0 = time.perf_counter()
-    res = identify(pr.traj, pr.scene, pr.space,
-                   IdentifySettings(params=free, n_clips=clips, popsize=popsize, max_gen=gens, seed=seed),
-                   nthread=threads)
-    est = res.summary()
-    return est["estimate"]["box_mass"], est["estimate"]["box_friction"], est["std"]["box_mass"], \
-        time.perf_counter() - t0, len(res.history)
+    pr = load_problem(job["log"], params=settings.params, smooth=job.get("smooth", "auto"))
+    res = identify(pr.traj, pr.scene, pr.space, settings, nthread=job["threads"])
+    s = res.summary()
+    return {"log": job["log"], "seed": job["seed"], "tag": job.get("tag", ""), "estimate": s["estimate"], "std": s["std"],
+            "truth": job["truth"], "wall_s": time.perf_counter() - t0, "generations": s["generations"],
+            "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"]}
+
+
+def table(rows: list[dict]) -> None:
+    from amhe_cli.estimation.uncertainty import coverage
+    print(f"{'log':<24} {'n':>2} {'mass err % mean±std':>20} {'median':>7} {'worst':>7} {'mu err worst':>12} "
+          f"{'cov mass':>8} {'cov mu':>7} {'cov I':>6} {'wall s':>7}")
+    hits, worst_m, worst_mu = [], 0.0, 0.0
+    for log in dict.fromkeys(r["log"] for r in rows):
+        rs = [r for r in rows if r["log"] == log]
+        t = rs[0]["truth"]
+        m = np.array([r["estimate"]["box_mass"] for r in rs])
+        me = 100 * (m - t["box_mass"]) / t["box_mass"]
+        mue = np.array([r["estimate"]["box_friction"] - t["box_friction"] for r in rs])
+        cov = {}
+        for name in ("box_mass", "box_friction", "box_inertia"):
+            if name in t and name in rs[0]["estimate"]:
+                c = coverage([np.atleast_1d(r["estimate"][name]) for r in rs],
+                             [np.atleast_1d(r["std"][name]) for r in rs], np.atleast_1d(t[name]))
+                cov[name] = c
+                hits.append(c.ravel())
+        worst_m, worst_mu = max(worst_m, np.abs(me).max()), max(worst_mu, np.abs(mue).max())
+        f = lambda k: f"{100 * cov[k].mean():.0f} %" if k in cov else "-"  # noqa: E731
+        print(f"{Path(log).name:<24} {len(rs):>2} {me.mean():+9.2f} ± {me.std():5.2f}   {np.median(np.abs(me)):6.2f} "
+              f"{me[np.argmax(np.abs(me))]:+7.2f} {mue[np.argmax(np.abs(mue))]:+12.4f} {f('box_mass'):>8} "
+              f"{f('box_friction'):>7} {f('box_inertia'):>6} {np.median([r['wall_s'] for r in rs]):7.1f}")
+    allhits = np.concatenate(hits) if hits else np.zeros(0)
+    print(f"2-sigma coverage over all runs and parameters: {100 * allhits.mean():.1f} % of {allhits.size} values")
+    print(f"worst_mass_err_pct={worst_m:.2f} worst_mu_err={worst_mu:.4f}")
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("log")
-    ap.add_argument("truth")
-    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("logs", nargs="+", help="LOG or LOG=TRUTH.yaml")
+    ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--jobs", type=int, default=1)
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--params", default=None)
-    ap.add_argument("--setting", action="append", default=None,
-                    help="name:clips,popsize,generations (repeatable); default: the CLI defaults")
+    ap.add_argument("--out", default=None, help="JSON-lines file the rows are appended to as they finish")
+    ap.add_argument("--identify-arg", action="append", default=[], metavar="KEY=VALUE",
+                    help="identify setting other than the CLI default: clips, popsize, generations, "
+                         "horizon (MIN,MAX) or any IdentifySettings field (e.g. average_last=6)")
+    ap.add_argument("--sigma", action="append", default=[], metavar="GROUP=SIGMA",
+                    help="W_x σ of a state group (as identify's W_x overrides), e.g. box_linvel=inf")
+    ap.add_argument("--smooth", default="auto", help="pose smoothing: auto, 0 or a window in samples")
+    ap.add_argument("--tag", default="", help="label stored with each row (e.g. the setting compared)")
+    ap.add_argument("--table", default=None, help="only print the table of an existing --out file")
     a = ap.parse_args()
-    m_true, mu_true = truth_of(a.truth)
-    settings = a.setting or ["default:32,16,50"]
-    jobs, names = [], []
-    for s in settings:
-        name, _, nums = s.partition(":")
-        c, p, g = (int(x) for x in nums.split(","))
-        for seed in range(a.seeds):
-            jobs.append((a.log, a.params, c, p, g, seed, a.threads))
-            names.append(name)
+    if a.table:
+        table([json.loads(line) for line in open(a.table) if line.strip()])
+        return
+    ident = {}
+    for kv in a.identify_arg:
+        k, _, v = kv.lstrip("-").partition("=")
+        ident[k] = v if k == "horizon" else (int(v) if v.lstrip("-").isdigit() else float(v))
+    jobs = []
+    for spec in a.logs:
+        log, _, given = spec.partition("=")
+        truth = truth_of(log, given or None)
+        sigma = {k: float(v) for k, _, v in (x.partition("=") for x in a.sigma)}
+        smooth = a.smooth if a.smooth == "auto" else int(a.smooth)
+        jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads, "params": a.params, "identify": ident, "truth": truth}
+                 for s in range(a.seeds)]
+    rows = []
+    out = open(a.out, "a") if a.out else None
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
-        out = list(ex.map(one, jobs))
-    print(f"truth: mass {m_true} kg, mu {mu_true}")
-    print(f"{'setting':<14} {'mass err %':>16} {'mu err':>16} {'reported std kg':>16} {'wall s':>12} {'gens':>6}")
-    worst_m = worst_mu = 0.0
-    for name in dict.fromkeys(names):
-        rows = np.array([o for o, n in zip(out, names) if n == name])
-        me = 100 * (rows[:, 0] - m_true) / m_true
-        mue = rows[:, 1] - mu_true
-        worst_m, worst_mu = max(worst_m, np.abs(me).max()), max(worst_mu, np.abs(mue).max())
-        print(f"{name:<14} {me.mean():+7.2f} ± {me.std():5.2f} {mue.mean():+8.4f} ± {mue.std():.4f} "
-              f"{rows[:, 2].mean():16.4f} {rows[:, 3].mean():6.1f} ± {rows[:, 3].std():4.1f} {rows[:, 4].mean():6.1f}")
-        for r in rows:
-            print(f"    mass {r[0]:.3f}  mu {r[1]:.4f}  {r[3]:.1f} s")
-    print(f"worst_mass_err_pct={worst_m:.2f} worst_mu_err={worst_mu:.4f}")
+        futures = [ex.submit(one, j) for j in jobs]
+        for fut in as_completed(futures):
+            r = fut.result()
+            rows.append(r)
+            if out:
+                out.write(json.dumps(r) + "\n")
+                out.flush()
+            print(f"[{len(rows)}/{len(jobs)}] {Path(r['log']).name} seed {r['seed']}: mass {r['estimate']['box_mass']:.3f} "
+                  f"± {r['std']['box_mass']:.3f}, mu {r['estimate']['box_friction']:.4f} ± {r['std']['box_friction']:.4f}, "
+                  f"{r['wall_s']:.1f} s", file=sys.stderr, flush=True)
+    rows.sort(key=lambda r: (a.logs.index(next(s for s in a.logs if s.partition('=')[0] == r["log"])), r["seed"]))
+    table(rows)
 
 
 if __name__ == "__main__":

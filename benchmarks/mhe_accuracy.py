@@ -26,11 +26,13 @@ import numpy as np
 
 def run(job):
     log, kind, kw, seed, threads = job
+    from amhe_cli.estimation.cost import StateWeights
     from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
     from amhe_cli.estimation.problem import load_problem
     from amhe_cli.estimation.replay import estimates_table, replay, truth_series
     pr = load_problem(log, params=("box_mass", "box_friction"))
-    with MovingHorizonEstimator(pr.scene, pr.space, MHESettings(**{**kw, "seed": seed}), nthread=threads) as m:
+    with MovingHorizonEstimator(pr.scene, pr.space, MHESettings(**{**kw, "seed": seed}),
+                                StateWeights.for_log(pr.traj), nthread=threads) as m:  # as mhe-replay does
         res = replay(pr.traj, m)
     head, rows = estimates_table(pr.space, res)
     t, mass, mu = rows[:, 0], rows[:, head.index("box_mass")], rows[:, head.index("box_friction")]
