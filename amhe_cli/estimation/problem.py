@@ -7,11 +7,10 @@ behave the same everywhere.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
-
-import warnings
 
 import yaml
 
