@@ -155,6 +155,11 @@ def test_nuisance_parameters_write_the_model():
     assert m.body_mass[trunk] == pytest.approx(before + 0.5)
     space.write(m, space.mean0)
     assert m.body_mass[trunk] == pytest.approx(before)
+    # where they are not free, the servo and the trunk stay as the scene built them (e.g. torque motors)
+    box_only = ParameterSpace(scene, free=("box_mass",))
+    m.actuator_gainprm[:, 0], m.actuator_biasprm[:, :3] = 1.0, 0.0
+    box_only.write(m, box_only.mean0)
+    assert np.all(m.actuator_gainprm[:, 0] == 1.0) and np.all(m.actuator_biasprm[:, :3] == 0.0)
 
 
 def test_coverage_counts_intervals_that_hold_the_truth():

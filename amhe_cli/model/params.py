@@ -302,11 +302,16 @@ class ParameterSpace:
         model.pair_friction[self.scene.region_pairs, 0] = mu
         model.pair_friction[self.scene.region_pairs, 1] = mu
         model.geom_friction[self._robot_geoms, 0] = vals["robot_box_friction"]
-        kp = self._kp0 * (vals["robot_kp"] / self._kp0.mean())
-        model.actuator_gainprm[:, 0] = kp
-        model.actuator_biasprm[:, 1] = -kp
-        model.actuator_biasprm[:, 2] = -self._kd0 * (vals["robot_kd"] / self._kd0.mean())
-        model.body_mass[self._trunk] = self._trunk_mass + vals["trunk_payload"]
+        # the robot's servo and trunk are touched only where they are free: the scene's own
+        # actuators (position servos, or motors replaying torques) stay as they were built
+        if "robot_kp" in self._slices:
+            kp = self._kp0 * (vals["robot_kp"] / self._kp0.mean())
+            model.actuator_gainprm[:, 0] = kp
+            model.actuator_biasprm[:, 1] = -kp
+        if "robot_kd" in self._slices:
+            model.actuator_biasprm[:, 2] = -self._kd0 * (vals["robot_kd"] / self._kd0.mean())
+        if "trunk_payload" in self._slices:
+            model.body_mass[self._trunk] = self._trunk_mass + vals["trunk_payload"]
         data = self._scratch.get(id(model))
         if data is None:
             data = self._scratch[id(model)] = mujoco.MjData(model)
