@@ -617,3 +617,34 @@ def test_evaluate_keeps_rows_as_they_finish_and_resume_runs_only_the_missing(tmp
     assert sorted(r["seed"] for r in rows) == [0, 1, 2, 3]
     assert rows[:len(first)] == first  # finished rows kept as they were, not run again
     assert json.loads(done.stdout)["rows"][0]["n"] == 4
+
+
+def test_evaluate_on_a_local_ray_instance_gives_the_local_pools_rows(tmp_path):
+    """`--ray` runs the same grid as Ray tasks (a local instance here): the same rows as the process pool."""
+    import subprocess
+    import sys
+
+    pytest.importorskip("ray")
+    from amhe_cli.io.rows import read_rows
+    base = [sys.executable, "-c", "from amhe_cli.cli import main; main()", "evaluate", "--task", "t4", "--seeds", "2",
+            "--modes", "true", "--duration", "5", "--workers", "2", "-q"]
+    rows = {}
+    for name, extra in (("pool", []), ("ray", ["--ray"])):
+        out = tmp_path / f"{name}.csv"
+        done = subprocess.run(base + ["--out", str(out)] + extra, capture_output=True, text=True, timeout=400)
+        assert done.returncode == 0, done.stderr
+        rows[name] = sorted(read_rows(out), key=lambda r: r["seed"])
+    assert [r["seed"] for r in rows["ray"]] == [0, 1]
+    for a, b in zip(rows["pool"], rows["ray"]):
+        a.pop("control_hz"), b.pop("control_hz")  # a wall-clock rate; everything else is the simulation's
+        assert a == b
+
+
+def test_evaluate_refuses_a_ray_address_where_nothing_answers(tmp_path, capsys):
+    out = tmp_path / "grid.csv"
+    for address, words in (("127.0.0.1:1", ("127.0.0.1:1", "no Ray cluster answers")),
+                           ("no-port", ("no-port", "HOST:PORT"))):
+        res = amhe(capsys, "evaluate", "--task", "t4", "--seeds", "1", "--modes", "true", "--ray", address,
+                   "--out", str(out))
+        one_line_error(res, *words)
+        assert not out.exists()  # refused before any output

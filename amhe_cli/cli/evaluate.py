@@ -10,6 +10,7 @@ import click
 
 from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, load_belief, progress_bar
 from amhe_cli.errors import AmheError
+from amhe_cli.estimation.identify import IdentifySettings
 from amhe_cli.io.rows import RowLog, read_rows
 
 
@@ -28,6 +29,10 @@ from amhe_cli.io.rows import RowLog, read_rows
                    "cycle, task).")
 @click.option("--duration", default=None, type=float, help="Time limit per run [s] (default: the task's).")
 @click.option("--workers", default=None, type=int, help="Worker processes, one run each (default: all CPUs).")
+@click.option("--ray", "ray_address", default=None, is_flag=False, flag_value="local", metavar="[ADDRESS]",
+              help="Run the grid as Ray tasks, one CPU each: --ray alone starts a local Ray instance (--workers "
+                   "CPUs), --ray ADDRESS joins a running cluster (e.g. ray://head:10001; amhe must be installed "
+                   "on its nodes). Needs pip install 'amhe[ray]'.")
 @click.option("--out", default=None, type=click.Path(),
               help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz "
                    "(default: evaluate_<task>.csv).")
@@ -38,8 +43,8 @@ from amhe_cli.io.rows import RowLog, read_rows
               help="Also append each finished run as one JSON line (all its metrics) to this file.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary table as one JSON object and nothing else.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
-def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out, force, resume, jsonl, as_json,
-                 quiet):
+def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray_address, out, force, resume, jsonl,
+                 as_json, quiet):
     """Run modes × seeds of a task in parallel and print the paper's Table I layout.
 
     Per mode: success rate S_R [%], and mean ± std over the seeds of the final
@@ -50,7 +55,7 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
     runs only what is missing. Without --resume or --force an existing --out
     is refused before any run.
     """
-    from amhe_cli.control.evaluate import evaluate, load_config, probe_belief, run_settings, summarise
+    from amhe_cli.control.evaluate import check_ray, evaluate, load_config, probe_belief, run_settings, summarise
 
     from amhe_cli.control.closed_loop import MODES
     mode_list = [m.strip() for m in modes.split(",") if m.strip()]
@@ -63,6 +68,8 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
     task, _ = run_settings(task_name, mode_list[0] if mode_list else "true", cfg, duration=duration)
     if workers is not None and workers < 1:
         raise AmheError(f"--workers {workers}: expected at least 1")
+    if ray_address:
+        check_ray(ray_address)
     if resume and force:
         raise AmheError("--resume keeps the rows --out has and --force discards them: give one of them")
     out_path = Path(out or f"evaluate_{task.name}.csv")
@@ -85,7 +92,7 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
         if not (quiet or as_json):
             click.echo("no --belief: probing in the sim once for the baseline/adaptive starting belief "
                        "(the lunge probe, then identify: about a minute on 2 cores)", err=True)
-        pbar = progress_bar(40, "probe+identify", quiet or as_json)
+        pbar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
         try:
             start = probe_belief(task, seed=0, progress=lambda g, b: pbar.update(g - pbar.n))
         finally:
@@ -108,7 +115,8 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, out
             for m in mode_list))
     try:
         with RowLog(out_path, jsonl_path) as log:
-            evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=finished, done=done)
+            evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=finished, done=done,
+                     ray=ray_address)
     except KeyboardInterrupt:
         bar.close()
         click.echo(f"amhe: interrupted: {len(rows)} of {total} runs are in {out_path}; run the same command "

@@ -14,6 +14,7 @@ import numpy as np
 from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, fmt, load_belief, parse_xy, progress_bar
 from amhe_cli.control.closed_loop import MODES
 from amhe_cli.errors import AmheError
+from amhe_cli.estimation.identify import IdentifySettings
 
 
 @click.command("run")
@@ -104,9 +105,10 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     elif probing:
         if talk:
             click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the lunge "
-                       "probe, then identify (up to 40 CMA-ES generations, about a minute on 2 cores); then the "
+                       f"probe, then identify (up to {IdentifySettings.max_gen} CMA-ES generations, under a minute on 2 "
+                       "cores); then the "
                        f"{task.name} run (up to {task.duration:g} s of sim time)", err=True)
-        bar = progress_bar(40, "probe+identify", quiet or as_json)
+        bar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
         try:
             start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))
         finally:

@@ -5,7 +5,8 @@
   ``cycle``, ``task:`` overrides such as ``duration``);
 * :func:`probe_belief` is what ``run`` does without ``--belief``: the lunge probe
   in the sim plant with the task's starting truth, then ``identify``;
-* :func:`evaluate` runs tasks × modes × seeds in worker processes and
+* :func:`evaluate` runs tasks × modes × seeds in worker processes (or as Ray
+  tasks, on this machine or a cluster) and
   :func:`summarise` gives the mean ± std table of S_R, e_g, J, t_exec.
 """
 
@@ -117,18 +118,23 @@ def _one(args) -> dict:
 
 def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: dict | None = None,
              workers: int | None = None, duration: float | None = None, progress=None,
-             done: set | None = None) -> list[dict]:
-    """Run every mode × seed of a task in worker processes (one rollout thread each).
+             done: set | None = None, ray: str | None = None) -> list[dict]:
+    """Run every mode × seed of a task in worker processes (one rollout thread each), or as Ray tasks.
 
     Args:
         done: (mode, seed) pairs to skip (rows a cut-off grid already has).
         progress: called with each row the moment its run finishes (in finishing
             order) — where a caller writes it to disk.
+        ray: None: a local process pool of ``workers``. ``"local"``: a Ray
+            instance started here (``workers`` CPUs); otherwise the address of
+            a running Ray cluster (``ray://head:10001`` or ``head:6379``), whose
+            nodes need the same amhe installed. One CPU per run either way, so
+            the rows are the same (``control_hz`` aside, a wall-clock figure).
     Returns:
         one dict per run made, in finishing order: task, mode, seed, success,
         e_g, J, t_exec, rmse, fell, control_hz (and ``failure`` where the plant failed).
     Raises:
-        AmheError: unknown mode, or modes needing a belief without one.
+        AmheError: unknown mode, modes needing a belief without one, Ray asked for but not installed.
         KeyboardInterrupt: passed on after the runs not yet started are cancelled
             (those in flight are lost; every finished one went to ``progress``).
     """
@@ -140,19 +146,84 @@ def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: d
     jobs = [(task_name, m, s, config, belief.__dict__ if belief else None, duration)
             for s in range(seeds) for m in modes if (m, s) not in done]
     rows = []
+    finished = _ray_runs(jobs, ray, workers) if ray else _pool_runs(jobs, workers)
+    for row in finished:
+        rows.append(row)
+        if progress is not None:
+            progress(row)
+    return rows
+
+
+def _pool_runs(jobs: list, workers: int | None):
+    """Rows of ``jobs`` from local worker processes, as each run finishes."""
     pool = ProcessPoolExecutor(max_workers=workers or os.cpu_count())
     try:
         futures = [pool.submit(_one, job) for job in jobs]
         for fut in as_completed(futures):
-            row = fut.result()
-            rows.append(row)
-            if progress is not None:
-                progress(row)
+            yield fut.result()
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)
         raise
     pool.shutdown()
-    return rows
+
+
+def check_ray(address: str) -> None:
+    """Fail before any run where ``--ray ADDRESS`` cannot work: Ray not installed, or nothing answers there.
+
+    Raises:
+        AmheError: one line saying which.
+    """
+    import importlib.util
+    if importlib.util.find_spec("ray") is None:
+        raise AmheError("--ray needs Ray: pip install 'amhe[ray]'")
+    if address != "local":
+        _check_reachable(address)
+
+
+def _ray_runs(jobs: list, address: str, workers: int | None):
+    """Rows of ``jobs`` run as Ray tasks of one CPU each, as each finishes (``ray.wait``)."""
+    check_ray(address)
+    import ray
+    started = not ray.is_initialized()
+    if started:
+        if address == "local":  # a private instance on the loopback interface only
+            kw = {"num_cpus": workers or os.cpu_count(), "_node_ip_address": "127.0.0.1"}
+        else:
+            kw = {"address": address}
+        try:
+            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kw)
+        except (ConnectionError, RuntimeError, ValueError) as e:
+            raise AmheError(f"--ray {address}: cannot reach a Ray cluster there ({str(e).splitlines()[0]})") from None
+    remote = ray.remote(num_cpus=1, max_retries=0)(_one)
+    pending = [remote.remote(job) for job in jobs]
+    try:
+        while pending:
+            ready, pending = ray.wait(pending, num_returns=1)
+            yield ray.get(ready[0])
+    except BaseException:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail fast, in one line, where nothing answers at a Ray address (Ray itself retries for minutes).
+
+    Raises:
+        AmheError: the address is not ``[ray://]host:port`` or nothing accepts a connection there.
+    """
+    import socket
+    host, sep, port = address.split("://", 1)[-1].rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise AmheError(f"--ray {address}: expected a Ray cluster address HOST:PORT or ray://HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise AmheError(f"--ray {address}: no Ray cluster answers there ({e.strerror or e}); start one with "
+                        "`ray start --head` or give --ray alone for a local instance") from None
 
 
 def summarise(rows: list[dict], modes) -> list[dict]:
