@@ -186,8 +186,8 @@ def _ray_runs(jobs: list, address: str, workers: int | None):
     import ray
     started = not ray.is_initialized()
     if started:
-        if address == "local":  # a private instance on the loopback interface only
-            kw = {"num_cpus": workers or os.cpu_count(), "_node_ip_address": "127.0.0.1"}
+        if address == "local":  # a private instance, gone with this command (Ray binds the host's address)
+            kw = {"num_cpus": workers or os.cpu_count()}
         else:
             kw = {"address": address}
         try:
