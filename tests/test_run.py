@@ -691,3 +691,13 @@ def test_evaluate_refuses_a_ray_address_where_nothing_answers(tmp_path, capsys):
                    "--out", str(out))
         one_line_error(res, *words)
         assert not out.exists()  # refused before any output
+
+
+def test_evaluate_says_how_to_get_ray_when_it_is_missing(tmp_path, capsys, monkeypatch):
+    import importlib.util
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a))
+    out = tmp_path / "grid.csv"
+    res = amhe(capsys, "evaluate", "--task", "t4", "--seeds", "1", "--modes", "true", "--ray", "--out", str(out))
+    one_line_error(res, "--ray", "pip install 'amhe[ray]'")
+    assert not out.exists()

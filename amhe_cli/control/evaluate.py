@@ -174,10 +174,10 @@ def check_ray(address: str) -> None:
         AmheError: one line saying which.
     """
     import importlib.util
-    if importlib.util.find_spec("ray") is None:
-        raise AmheError("--ray needs Ray: pip install 'amhe[ray]'")
     if address != "local":
         _check_reachable(address)
+    if importlib.util.find_spec("ray") is None:
+        raise AmheError("--ray needs Ray: pip install 'amhe[ray]'")
 
 
 def _ray_runs(jobs: list, address: str, workers: int | None):
