@@ -701,3 +701,46 @@ def test_evaluate_says_how_to_get_ray_when_it_is_missing(tmp_path, capsys, monke
     res = amhe(capsys, "evaluate", "--task", "t4", "--seeds", "1", "--modes", "true", "--ray", "--out", str(out))
     one_line_error(res, "--ray", "pip install 'amhe[ray]'")
     assert not out.exists()
+
+
+def test_sweep_settings_are_dotted_run_config_keys():
+    from amhe_cli.control.evaluate import default_setting, parse_sweep, sweep_variants, with_setting
+    from amhe_cli.errors import AmheError
+    assert parse_sweep("mhe.samples=6,10,16") == ("mhe.samples", [6, 10, 16])
+    assert parse_sweep("mhe.alpha=0.5,1") == ("mhe.alpha", [0.5, 1])
+    base = {"mhe": {"window": 2.0}}
+    assert with_setting(base, "mhe.samples", 6) == {"mhe": {"window": 2.0, "samples": 6}}
+    assert base == {"mhe": {"window": 2.0}}  # the config itself is left alone
+    labels = [label for label, _ in sweep_variants("t4", base, ["mhe.samples=6,16", "kp=90"])]
+    assert labels == ["mhe.samples=6", "mhe.samples=16", "kp=90"]
+    assert default_setting("t4", base, "mhe.window") == 2.0 and default_setting("t4", None, "mhe.samples") == 10
+    for bad in ("mhe.sampels=6", "mhe.samples", "=3"):
+        with pytest.raises(AmheError):
+            sweep_variants("t4", None, [bad])
+
+
+def test_evaluate_sweep_writes_rows_per_value_and_the_ablation_figure(tmp_path, capsys):
+    from amhe_cli.io.rows import read_rows
+    out, png = tmp_path / "sweep.csv", tmp_path / "ablation.png"
+    code, stdout, err = amhe(capsys, "evaluate", "--task", "t1", "--modes", "true", "--seeds", "1", "--duration", "0.4",
+                             "--workers", "2", "--sweep", "planner.samples=8,16", "--out", out, "--plot", png, "-q")
+    assert code == 0, err
+    rows = read_rows(out)
+    assert sorted(r["setting"] for r in rows) == ["planner.samples=16", "planner.samples=8"]
+    assert "planner.samples=8" in stdout and "planner.samples=16" in stdout
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    one_line_error(amhe(capsys, "evaluate", "--task", "t1", "--plot", tmp_path / "x.png", "--out", tmp_path / "y.csv"),
+                   "--plot", "--sweep")
+    one_line_error(amhe(capsys, "evaluate", "--task", "t1", "--sweep", "mhe.nope=1", "--out", tmp_path / "z.csv"),
+                   "nope")
+
+
+def test_rows_of_an_older_csv_read_but_are_not_appended_to(tmp_path):
+    from amhe_cli.errors import AmheError
+    from amhe_cli.io.rows import ROW_KEYS, RowLog, read_rows
+    old = tmp_path / "old.csv"
+    old.write_text(",".join(ROW_KEYS[:-1]) + "\nt4,true,0,True,0.05,1.0,30.0,0.1,False,9.5\n")
+    (row,) = read_rows(old)
+    assert row["setting"] == "" and row["success"] is True and row["seed"] == 0
+    with pytest.raises(AmheError, match="--force"):
+        RowLog(old)

@@ -41,10 +41,17 @@ from amhe_cli.io.rows import RowLog, read_rows
               help="Keep the rows an existing --out already has (a grid cut off) and run only the missing ones.")
 @click.option("--jsonl", default=None, type=click.Path(),
               help="Also append each finished run as one JSON line (all its metrics) to this file.")
+@click.option("--sweep", "sweeps", multiple=True, metavar="KEY=V1,V2,…",
+              help="Ablation: rerun the grid for each value of a dotted run setting (mhe.samples=6,10,16, "
+                   "mhe.window=0.5,1,2, planner.samples=…, kp=…); several --sweep flags vary one setting at a "
+                   "time around the defaults. The table gets one block per value.")
+@click.option("--plot", default=None, type=click.Path(),
+              help="With --sweep: write the ablation figure (PNG): per swept setting, mean controller cost J "
+                   "and success rate against its values, the default marked.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary table as one JSON object and nothing else.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray_address, out, force, resume, jsonl,
-                 as_json, quiet):
+                 sweeps, plot, as_json, quiet):
     """Run modes × seeds of a task in parallel and print the paper's Table I layout.
 
     Per mode: success rate S_R [%], and mean ± std over the seeds of the final
@@ -55,7 +62,9 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
     runs only what is missing. Without --resume or --force an existing --out
     is refused before any run.
     """
-    from amhe_cli.control.evaluate import check_ray, evaluate, load_config, probe_belief, run_settings, summarise
+    from amhe_cli.cli.plot import check_png_name
+    from amhe_cli.control.evaluate import (check_ray, default_setting, evaluate, load_config, parse_sweep, probe_belief,
+                                           run_settings, summarise, sweep_variants)
 
     from amhe_cli.control.closed_loop import MODES
     mode_list = [m.strip() for m in modes.split(",") if m.strip()]
@@ -70,18 +79,25 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
         raise AmheError(f"--workers {workers}: expected at least 1")
     if ray_address:
         check_ray(ray_address)
+    variants = sweep_variants(task_name, cfg, list(sweeps)) if sweeps else None
+    labels = [label for label, _ in variants] if variants else [""]
+    if plot is not None and not sweeps:
+        raise AmheError("--plot draws the ablation figure of a --sweep: give at least one --sweep")
+    plot = check_png_name(plot)
     if resume and force:
         raise AmheError("--resume keeps the rows --out has and --force discards them: give one of them")
     out_path = Path(out or f"evaluate_{task.name}.csv")
     kept: list[dict] = []
     if resume and out_path.exists():
-        kept = [r for r in read_rows(out_path) if r["mode"] in mode_list and r["seed"] < seeds]
+        kept = [r for r in read_rows(out_path)
+                if r["mode"] in mode_list and r["seed"] < seeds and r["setting"] in labels]
         other = {r["task"] for r in kept} - {task.name}
         if other:
             raise AmheError(f"--resume: {out_path} holds rows of task {', '.join(sorted(other))}, not {task.name}")
         (jsonl_path,) = check_outputs(True, ("--jsonl", jsonl)) if jsonl else (None,)
+        (plot_path,) = check_outputs(True, ("--plot", plot))  # redrawn from the resumed rows
     else:
-        out_path, jsonl_path = check_outputs(force, ("--out", out_path), ("--jsonl", jsonl))
+        out_path, jsonl_path, plot_path = check_outputs(force, ("--out", out_path), ("--jsonl", jsonl), ("--plot", plot))
         for p in (out_path, jsonl_path):
             if p is not None and p.exists():
                 p.unlink()  # --force: start the grid anew
@@ -97,8 +113,8 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
             start = probe_belief(task, seed=0, progress=lambda g, b: pbar.update(g - pbar.n))
         finally:
             pbar.close()
-    done = {(r["mode"], r["seed"]) for r in kept}
-    total = seeds * len(mode_list)
+    done = {(r["setting"], r["mode"], r["seed"]) for r in kept}
+    total = seeds * len(mode_list) * len(labels)
     if kept and not (quiet or as_json):
         click.echo(f"--resume: {len(done)} of {total} runs already in {out_path}; running the other "
                    f"{total - len(done)}", err=True)
@@ -116,7 +132,7 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
     try:
         with RowLog(out_path, jsonl_path) as log:
             evaluate(task.name, mode_list, seeds, start, cfg, workers, duration, progress=finished, done=done,
-                     ray=ray_address)
+                     ray=ray_address, variants=variants)
     except KeyboardInterrupt:
         bar.close()
         click.echo(f"amhe: interrupted: {len(rows)} of {total} runs are in {out_path}; run the same command "
@@ -124,13 +140,21 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
         sys.exit(130)
     finally:
         bar.close()
-    table = summarise(rows, mode_list)
+    table = summarise(rows, mode_list, labels)
+    if plot_path is not None:
+        from amhe_cli.cli.plot import plot_ablation
+        swept = [parse_sweep(t) for t in sweeps]
+        plot_ablation(plot_path, table, swept, {k: default_setting(task.name, cfg, k) for k, _ in swept}, mode_list)
     if as_json:
-        click.echo(json.dumps({"task": task.name, "seeds": seeds, "rows": table, "csv": str(out_path)}))
+        click.echo(json.dumps({"task": task.name, "seeds": seeds, "rows": table, "csv": str(out_path),
+                               **({"plot": str(plot_path)} if plot_path else {})}))
         return
     click.echo(f"{task.name}, {seeds} seed(s) per mode (mean ± std)")
-    click.echo(f"{'mode':>10}  {'S_R %':>6}  {'e_g [m]':>15}  {'J':>15}  {'t_exec [s]':>15}")
+    wide = max((len(label) for label in labels), default=0)
+    head = f"{'setting':<{wide}}  " if sweeps else ""
+    click.echo(f"{head}{'mode':>10}  {'S_R %':>6}  {'e_g [m]':>15}  {'J':>15}  {'t_exec [s]':>15}")
     for r in table:
-        click.echo(f"{r['mode']:>10}  {r['S_R']:6.1f}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
+        lead = f"{r['setting']:<{wide}}  " if sweeps else ""
+        click.echo(f"{lead}{r['mode']:>10}  {r['S_R']:6.1f}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
                    f"{r['J'][0]:7.2f} ± {r['J'][1]:5.2f}  {r['t_exec'][0]:7.1f} ± {r['t_exec'][1]:5.1f}")
-    click.echo(f"per-run rows: {out_path}")
+    click.echo(f"per-run rows: {out_path}" + (f"; ablation figure: {plot_path}" if plot_path else ""))

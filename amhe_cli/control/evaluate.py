@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import copy
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import replace
@@ -108,21 +109,79 @@ def probe_belief(task: Task, seed: int = 0, threads: int | None = None, progress
 
 
 def _one(args) -> dict:
-    task_name, mode, seed, config, belief_dict, duration = args
+    task_name, mode, seed, config, belief_dict, duration, setting = args
     task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
     belief = Belief(**belief_dict) if belief_dict else None
     r = run_task(task, belief, settings)
     return {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "fell": r.fell,
-            "control_hz": r.control_hz}
+            "control_hz": r.control_hz, "setting": setting}
+
+
+def parse_sweep(text: str) -> tuple[str, list]:
+    """``"mhe.samples=6,10,16"`` -> ``("mhe.samples", [6, 10, 16])`` (values read as YAML scalars).
+
+    Raises:
+        AmheError: not ``KEY=V1,V2,…``.
+    """
+    key, sep, vals = text.partition("=")
+    values = [yaml.safe_load(v) for v in vals.split(",") if v.strip()]
+    if not sep or not key.strip() or not values:
+        raise AmheError(f"--sweep {text!r}: expected a dotted run setting and its values, e.g. mhe.samples=6,10,16")
+    return key.strip(), values
+
+
+def with_setting(config: dict, key: str, value) -> dict:
+    """A copy of the run config ``config`` with the dotted setting ``key`` (``mhe.samples``, ``kp``) set."""
+    out = copy.deepcopy(config or {})
+    *path, leaf = key.split(".")
+    node = out
+    for part in path:
+        node = node.setdefault(part, {})
+        if not isinstance(node, dict):
+            raise AmheError(f"--sweep {key}: {part} is not a group of settings")
+    node[leaf] = value
+    return out
+
+
+def default_setting(task_name: str, config: dict | None, key: str):
+    """The value the dotted setting ``key`` has in the run ``config`` leaves (for marking the default).
+
+    ``task.*`` and ``weights.*`` are read from the task, ``mhe.*`` and
+    ``planner.*`` from the run settings' groups, others (``kp``, ``cycle``) from
+    the run settings themselves.
+    """
+    task, settings = run_settings(task_name, "adaptive", config)
+    head, _, leaf = key.partition(".")
+    owner = {"task": task, "weights": task.weights, "mhe": settings.mhe, "planner": settings.planner}.get(head)
+    return getattr(settings, head) if owner is None and not leaf else getattr(owner, leaf)
+
+
+def sweep_variants(task_name: str, config: dict | None, sweeps: list[str]) -> list[tuple[str, dict]]:
+    """(label, config) per swept value, one setting at a time around ``config`` (the paper's ablation).
+
+    Raises:
+        AmheError: a malformed ``--sweep`` or a setting the run config does not know.
+    """
+    out = []
+    for text in sweeps:
+        key, values = parse_sweep(text)
+        for v in values:
+            cfg = with_setting(config, key, v)
+            run_settings(task_name, "adaptive", cfg)  # unknown names fail here, before any run
+            out.append((f"{key}={v}", cfg))
+    return out
 
 
 def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: dict | None = None,
              workers: int | None = None, duration: float | None = None, progress=None,
-             done: set | None = None, ray: str | None = None) -> list[dict]:
+             done: set | None = None, ray: str | None = None,
+             variants: list[tuple[str, dict]] | None = None) -> list[dict]:
     """Run every mode × seed of a task in worker processes (one rollout thread each), or as Ray tasks.
 
     Args:
-        done: (mode, seed) pairs to skip (rows a cut-off grid already has).
+        done: (setting, mode, seed) triples to skip (rows a cut-off grid already has).
+        variants: (label, config) pairs to run the grid for (:func:`sweep_variants`);
+            None: ``config`` alone, label "".
         progress: called with each row the moment its run finishes (in finishing
             order) — where a caller writes it to disk.
         ray: None: a local process pool of ``workers``. ``"local"``: a Ray
@@ -141,10 +200,12 @@ def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: d
     check_names(modes, MODES, "mode")
     if belief is None and set(modes) - {"true"}:
         raise AmheError("baseline and adaptive modes need a belief")
-    run_settings(task_name, modes[0], config, duration=duration)  # validate before forking
+    variants = variants or [("", config)]
+    for _, cfg in variants:
+        run_settings(task_name, modes[0], cfg, duration=duration)  # validate before forking
     done = done or set()
-    jobs = [(task_name, m, s, config, belief.__dict__ if belief else None, duration)
-            for s in range(seeds) for m in modes if (m, s) not in done]
+    jobs = [(task_name, m, s, cfg, belief.__dict__ if belief else None, duration, label)
+            for label, cfg in variants for s in range(seeds) for m in modes if (label, m, s) not in done]
     rows = []
     finished = _ray_runs(jobs, ray, workers) if ray else _pool_runs(jobs, workers)
     for row in finished:
@@ -226,16 +287,24 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
                         "`ray start --head` or give --ray alone for a local instance") from None
 
 
-def summarise(rows: list[dict], modes) -> list[dict]:
-    """Per mode: n, S_R [%], and mean ± std of e_g, J, t_exec, rmse (the paper's Table I)."""
+def summarise(rows: list[dict], modes, settings=("",)) -> list[dict]:
+    """Per setting and mode: n, S_R [%], and mean ± std of e_g, J, t_exec, rmse (the paper's Table I).
+
+    ``settings``: the sweep labels in order (``("",)`` outside a sweep); each table row carries its ``setting``.
+    """
     out = []
-    for m in modes:
-        sel = [r for r in rows if r["mode"] == m]
-        if not sel:
-            continue
-        row = {"mode": m, "n": len(sel), "S_R": 100.0 * float(np.mean([r["success"] for r in sel]))}
-        for k in ("e_g", "J", "t_exec", "rmse"):
-            v = np.array([r[k] for r in sel], dtype=float)
-            row[k] = (float(v.mean()), float(v.std()))
-        out.append(row)
+    for label in settings:
+        for m in modes:
+            sel = [r for r in rows if r["mode"] == m and r.get("setting", "") == label]
+            if sel:
+                out.append({"setting": label, **_stats(sel, m)})
     return out
+
+
+def _stats(sel: list[dict], m: str) -> dict:
+    """n, S_R [%] and (mean, std) of e_g, J, t_exec, rmse over the rows ``sel`` of mode ``m``."""
+    row = {"mode": m, "n": len(sel), "S_R": 100.0 * float(np.mean([r["success"] for r in sel]))}
+    for k in ("e_g", "J", "t_exec", "rmse"):
+        v = np.array([r[k] for r in sel], dtype=float)
+        row[k] = (float(v.mean()), float(v.std()))
+    return row

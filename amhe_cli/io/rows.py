@@ -16,9 +16,11 @@ from pathlib import Path
 
 from amhe_cli.errors import AmheError
 
-#: Columns of an evaluation CSV, in order.
-ROW_KEYS = ("task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz")
-_TYPES = {"task": str, "mode": str, "seed": int, "success": lambda v: v == "True", "fell": lambda v: v == "True"}
+#: Columns of an evaluation CSV, in order; ``setting`` is the swept setting of the run (``mhe.samples=6``),
+#: empty outside a sweep.
+ROW_KEYS = ("task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz", "setting")
+_TYPES = {"task": str, "mode": str, "seed": int, "success": lambda v: v == "True", "fell": lambda v: v == "True",
+          "setting": str}
 
 
 def read_rows(path: str | os.PathLike) -> list[dict]:
@@ -40,15 +42,16 @@ def read_rows(path: str | os.PathLike) -> list[dict]:
     header = next(reader, None)
     if header is None:
         return []
-    if tuple(header) != ROW_KEYS:
+    keys = tuple(header)
+    if keys not in (ROW_KEYS, ROW_KEYS[:-1]):  # files from before sweeps have no setting column
         raise AmheError(f"{path}: not an amhe evaluate CSV (columns {', '.join(header)}; expected "
                         f"{', '.join(ROW_KEYS)})")
     rows = []
     for i, values in enumerate(reader, start=2):
-        if len(values) != len(ROW_KEYS):
-            raise AmheError(f"{path}, line {i}: {len(values)} values, expected {len(ROW_KEYS)}")
+        if len(values) != len(keys):
+            raise AmheError(f"{path}, line {i}: {len(values)} values, expected {len(keys)}")
         try:
-            rows.append({k: _TYPES.get(k, float)(v) for k, v in zip(ROW_KEYS, values)})
+            rows.append({"setting": "", **{k: _TYPES.get(k, float)(v) for k, v in zip(keys, values)}})
         except ValueError:
             raise AmheError(f"{path}, line {i}: a value does not parse: {values}") from None
     return rows
@@ -65,6 +68,12 @@ class RowLog:
     def __init__(self, csv_path: str | os.PathLike, jsonl_path: str | os.PathLike | None = None):
         self.csv_path = Path(csv_path)
         new = not self.csv_path.exists() or self.csv_path.stat().st_size == 0
+        if not new:
+            with self.csv_path.open(newline="") as fh:
+                header = tuple(next(csv.reader(fh), ()))
+            if header != ROW_KEYS:
+                raise AmheError(f"{self.csv_path}: its columns are not this amhe's ({', '.join(ROW_KEYS)}): "
+                                "start the grid anew with --force, or give another --out")
         self._csv = self.csv_path.open("a", newline="")
         self._writer = csv.writer(self._csv)
         if new:
@@ -79,7 +88,7 @@ class RowLog:
 
     def write(self, row: dict) -> None:
         """Append one run's row (keys :data:`ROW_KEYS`, more allowed in the JSON line) and flush it."""
-        self._writer.writerow([row[k] for k in ROW_KEYS])
+        self._writer.writerow([row.get(k, "") for k in ROW_KEYS])
         self._flush(self._csv)
         if self._jsonl is not None:
             self._jsonl.write(json.dumps(row, default=float) + "\n")
