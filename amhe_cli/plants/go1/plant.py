@@ -106,7 +106,8 @@ class Go1Plant(Plant):
         self._lock = threading.Lock()
         self._t0: float | None = None
         self._measured_at = 0.0
-        self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "imu", "feet")}
+        self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "tau", "imu", "feet")}
+        self._tau = np.zeros(12)  # the last tauEst the robot reported [N·m]
         self._raw: dict[str, list] = {"base": [], "box": []}  # (t, pos (3,), quat (4,)) as each pose arrived
         self._ctrl = scene.model.qpos0[scene.joint_qpos].copy()
         self._messages: list[str] = []
@@ -174,6 +175,9 @@ class Go1Plant(Plant):
             self._rec["qvel"].append(qvel)
             self._rec["ctrl"].append(self._ctrl)
             if state is not None:
+                self._tau = np.asarray(state.tau_est, dtype=float)[:12]
+            self._rec["tau"].append(self._tau)  # the joint efforts a log keeps: identify fits the servo from them
+            if state is not None:
                 self._rec["imu"].append((now - self._t0, *state.quaternion, *state.gyroscope, *state.accelerometer))
                 self._rec["feet"].append((now - self._t0, *state.foot_force))
 
@@ -225,6 +229,7 @@ class Go1Plant(Plant):
             qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
+            tau = np.array(self._rec["tau"][k:]).reshape(len(t), 12)
             # the mocap samples from just before the window on (the MHE asks for the last second)
             t_from = t[0] if len(t) else 0.0
             raw = {key: v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]
@@ -253,7 +258,7 @@ class Go1Plant(Plant):
             joint_pos=qp[:, sc.joint_qpos], joint_vel=qv[:, sc.joint_qvel],
             box_pos=qp[:, sc.box_qpos[:3]], box_quat=quat_normalize(qp[:, sc.box_qpos[3:]]),
             box_linvel=qv[:, sc.box_qvel[:3]], box_angvel=qv[:, sc.box_qvel[3:]],
-            ctrl=held, kp=np.full(12, self.settings.kp), kd=np.full(12, self.settings.kd),
+            ctrl=held, joint_effort=interp(tau), kp=np.full(12, self.settings.kp), kd=np.full(12, self.settings.kd),
             observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": False, "joint_states": True, "box": False},
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
