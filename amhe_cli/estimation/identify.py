@@ -73,7 +73,7 @@ class IdentifySettings:
             over 8 seeds × 5 logs (mass error ±5 % on the noisy and mismatched
             logs either way) and a truer σ (2σ coverage 92 % against 84 %) in
             0.70 of the time (one thread each on 16 cores; on 2 cores, ``amhe
-            identify`` on a 20 s log: 36 s against 45 s, median of 3).
+            identify`` on a 20 s log: 32.8 s against 42.2 s, median of 3).
         sigma0: initial CMA-ES step in prior-σ units.
         tolx: stop when every coordinate's CMA-ES step is below this, in
             prior-σ units (3e-3: 9 g of mass, 0.0015 of friction at the
