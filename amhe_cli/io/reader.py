@@ -74,7 +74,7 @@ def read_log(
         smooth: smoothing of base and box poses: ``"auto"`` (default) fits a
             zero-phase local quadratic (Savitzky–Golay) to a pose stream only
             where its noise shows (:mod:`~amhe_cli.io.smoothing`), with the
-            window that brings differentiated velocity noise to ~2 cm/s; an
+            window that brings differentiated velocity noise to ~5 cm/s; an
             int N > 1 forces an N-sample window on every pose; 0 turns it off.
             Logged velocities are kept as logged; velocities differentiated
             from smoothed poses come from the fit's slope.
