@@ -34,8 +34,8 @@ from amhe_cli.io.rows import RowLog, read_rows
                    "CPUs), --ray ADDRESS joins a running cluster (e.g. ray://head:10001; amhe must be installed "
                    "on its nodes). Needs pip install 'amhe[ray]'.")
 @click.option("--out", default=None, type=click.Path(),
-              help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz "
-                   "(default: evaluate_<task>.csv).")
+              help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz, "
+                   "setting (default: evaluate_<task>.csv).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl).")
 @click.option("--resume", is_flag=True,
               help="Keep the rows an existing --out already has (a grid cut off) and run only the missing ones.")

@@ -257,7 +257,7 @@ def _clip_set_cov(samples_z: list, samples_j: list, samples_clip: list, samples_
     """(d, d) covariance, in CMA-ES coordinates, of the optimum over resampled clip sets.
 
     Per-clip quadratics fitted to the samples of the late half of the
-    generations so far (:func:`~amhe_cli.estimation.surrogate.fit_valley`),
+    generations (:func:`~amhe_cli.estimation.surrogate.fit_valley`),
     bootstrapped over clips (:func:`~amhe_cli.estimation.surrogate.bootstrap_minima`);
     no rollouts. None with too few samples for a quadratic.
     """

@@ -61,7 +61,7 @@ class SimPlant(Plant):
         self.substeps = max(1, int(round(record_dt / self.model.opt.timestep)))
         self.record_dt = self.substeps * self.model.opt.timestep
         self.control_steps = max(1, int(round(control_period / self.record_dt)))
-        self._log: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "effort", "mass", "friction")}
+        self._log: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "mass", "friction")}
 
     def reset(self, qpos: np.ndarray, qvel: np.ndarray | None = None) -> None:
         """Set the state and clear the recording."""
@@ -80,9 +80,6 @@ class SimPlant(Plant):
             self._log["qpos"].append(self.data.qpos.copy())
             self._log["qvel"].append(self.data.qvel.copy())
             self._log["ctrl"].append(self.data.ctrl.copy())
-            # the servo torque of the step about to run, as a real JointState.effort reports it
-            self._log["effort"].append(servo_torque(self.model, self.data.ctrl, self.data.qpos[self.scene.joint_qpos],
-                                                    self.data.qvel[self.scene.joint_qvel]))
             self._log["mass"].append(self.truth_values["box_mass"])
             self._log["friction"].append(self.truth_values["box_friction"])
             mujoco.mj_step(self.model, self.data, nstep=self.substeps)
@@ -171,7 +168,10 @@ class SimPlant(Plant):
             joint_pos=qpos[:, s.joint_qpos], joint_vel=qvel[:, s.joint_qvel],
             box_pos=qpos[:, s.box_qpos[:3]], box_quat=qpos[:, s.box_qpos[3:]],
             box_linvel=qvel[:, s.box_qvel[:3]], box_angvel=qvel[:, s.box_qvel[3:]],
-            ctrl=np.array(log["ctrl"]), joint_effort=np.array(log["effort"]),
+            # the servo torque of each recorded step, as a real JointState.effort reports it (the sim's gains
+            # do not change during a run)
+            ctrl=np.array(log["ctrl"]),
+            joint_effort=servo_torque(self.model, np.array(log["ctrl"]), qpos[:, s.joint_qpos], qvel[:, s.joint_qvel]),
             kp=self.model.actuator_gainprm[:, 0].copy(), kd=-self.model.actuator_biasprm[:, 2].copy(),
             observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
             measured_velocity={"base": True, "joint_states": True, "box": True},
