@@ -723,11 +723,17 @@ def test_evaluate_sweep_writes_rows_per_value_and_the_ablation_figure(tmp_path, 
     from amhe_cli.io.rows import read_rows
     out, png = tmp_path / "sweep.csv", tmp_path / "ablation.png"
     code, stdout, err = amhe(capsys, "evaluate", "--task", "t1", "--modes", "true", "--seeds", "1", "--duration", "0.4",
-                             "--workers", "2", "--sweep", "planner.samples=8,16", "--out", out, "--plot", png, "-q")
+                             "--workers", "2", "--sweep", "planner.samples=8,30", "--sweep", "planner.knots=4,5",
+                             "--out", out, "--plot", png, "-q")
     assert code == 0, err
     rows = read_rows(out)
-    assert sorted(r["setting"] for r in rows) == ["planner.samples=16", "planner.samples=8"]
-    assert "planner.samples=8" in stdout and "planner.samples=16" in stdout
+    assert sorted(r["setting"] for r in rows) == ["planner.knots=4", "planner.knots=5", "planner.samples=30",
+                                                   "planner.samples=8"]
+    assert "planner.samples=8" in stdout and "planner.knots=5" in stdout
+    # both defaults (30 samples, 4 knots) are one run, its row written under each label
+    by = {r["setting"]: r for r in rows}
+    assert {**by["planner.knots=4"], "setting": ""} == {**by["planner.samples=30"], "setting": ""}
+    assert by["planner.knots=4"]["control_hz"] == by["planner.samples=30"]["control_hz"]  # a copy: wall-clock too
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     one_line_error(amhe(capsys, "evaluate", "--task", "t1", "--plot", tmp_path / "x.png", "--out", tmp_path / "y.csv"),
                    "--plot", "--sweep")

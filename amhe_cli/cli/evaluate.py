@@ -44,7 +44,8 @@ from amhe_cli.io.rows import RowLog, read_rows
 @click.option("--sweep", "sweeps", multiple=True, metavar="KEY=V1,V2,…",
               help="Ablation: rerun the grid for each value of a dotted run setting (mhe.samples=6,10,16, "
                    "mhe.window=0.5,1,2, planner.samples=…, kp=…); several --sweep flags vary one setting at a "
-                   "time around the defaults. The table gets one block per value.")
+                   "time around the defaults (values that leave the settings at their defaults run once, their rows "
+                   "shared). The table gets one block per value.")
 @click.option("--plot", default=None, type=click.Path(),
               help="With --sweep: write the ablation figure (PNG): per swept setting, mean controller cost J "
                    "and success rate against its values, the default marked.")

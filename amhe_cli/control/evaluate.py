@@ -13,9 +13,10 @@
 from __future__ import annotations
 
 import copy
+import json
 import os
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 import numpy as np
@@ -204,15 +205,44 @@ def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: d
     for _, cfg in variants:
         run_settings(task_name, modes[0], cfg, duration=duration)  # validate before forking
     done = done or set()
-    jobs = [(task_name, m, s, cfg, belief.__dict__ if belief else None, duration, label)
-            for label, cfg in variants for s in range(seeds) for m in modes if (label, m, s) not in done]
+    # variants whose settings coincide (each swept setting's default value) run once, their row
+    # copied under every label: a 4-setting ablation around the defaults saves 3 grids of runs
+    labels = {}  # effective settings -> labels sharing them
+    for label, cfg in variants:
+        labels.setdefault(_settings_key(task_name, cfg, duration), []).append((label, cfg))
+    jobs, shared = [], {}
+    for group in labels.values():
+        label, cfg = group[0]
+        for s in range(seeds):
+            for m in modes:
+                todo = [lb for lb, _ in group if (lb, m, s) not in done]
+                if todo:
+                    jobs.append((task_name, m, s, cfg, belief.__dict__ if belief else None, duration, todo[0]))
+                    shared[(todo[0], m, s)] = todo
     rows = []
     finished = _ray_runs(jobs, ray, workers) if ray else _pool_runs(jobs, workers)
     for row in finished:
-        rows.append(row)
-        if progress is not None:
-            progress(row)
+        for label in shared[(row["setting"], row["mode"], row["seed"])]:
+            copy_ = {**row, "setting": label}
+            rows.append(copy_)
+            if progress is not None:
+                progress(copy_)
     return rows
+
+
+def _settings_key(task_name: str, config: dict | None, duration: float | None) -> str:
+    """A canonical text of the task and run settings a config gives (ints as floats: ``window: 1`` is 1.0)."""
+    task, settings = run_settings(task_name, "adaptive", config, duration=duration)
+
+    def norm(x):
+        if isinstance(x, dict):
+            return {str(k): norm(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [norm(v) for v in x]
+        if isinstance(x, (int, float, np.number)) and not isinstance(x, bool):
+            return float(x)
+        return x
+    return json.dumps(norm(to_plain({"task": task.to_dict(), "settings": asdict(settings)})), sort_keys=True, default=str)
 
 
 def _pool_runs(jobs: list, workers: int | None):
