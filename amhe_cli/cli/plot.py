@@ -319,8 +319,9 @@ def plot_run(path, result, task) -> Path:
 
 
 def plot_ablation(path, table: list[dict], sweeps: list[tuple[str, list]], defaults: dict, modes) -> Path:
-    """The paper's ablation figure: one panel per swept setting, mean controller cost J (± std, left
-    axis) and success rate S_R (right axis) against its values, per mode; the default value marked.
+    """The paper's ablation figure: one panel per swept setting, mean controller cost J (± its standard
+    error over the seeds, left axis) and success rate S_R (right axis) against its values, per mode; the
+    default value marked. (A std bar would reach below zero: J is skewed by the odd failed seed.)
 
     Args:
         table: :func:`~amhe_cli.control.evaluate.summarise` rows (with ``setting`` labels ``key=value``).
@@ -339,25 +340,25 @@ def plot_ablation(path, table: list[dict], sweeps: list[tuple[str, list]], defau
             if not any(rows):
                 continue
             J = np.array([r["J"][0] if r else np.nan for r in rows])
-            Jsd = np.array([r["J"][1] if r else np.nan for r in rows])
+            Jse = np.array([r["J"][1] / np.sqrt(max(r["n"], 1)) if r else np.nan for r in rows])
             sr = np.array([r["S_R"] if r else np.nan for r in rows])
             colour = f"C{i}"
-            ax.errorbar(x, J, yerr=Jsd, color=colour, marker="o", capsize=3, label=f"{m}: J")
+            ax.errorbar(x, J, yerr=Jse, color=colour, marker="o", capsize=3, label=f"{m}: J")
             right.plot(x, sr, color=colour, marker="s", linestyle="--", label=f"{m}: S_R")
         if defaults.get(key) in values:
             ax.axvline(values.index(defaults[key]), color="0.5", linestyle=":", label="default")
         ax.set_xticks(x, [str(v) for v in values])
         ax.set_xlim(-0.5, len(values) - 0.5)
         ax.set_xlabel(f"{key} (default {defaults.get(key)})")
-        ax.set_ylabel("controller cost J per cycle (mean ± std)")
+        ax.set_ylabel("controller cost J per cycle (mean ± s.e.)")
         right.set_ylabel("success rate S_R [%]")
         right.set_ylim(-5, 105)
         ax.grid(alpha=0.3)
     h1, l1 = axes[0][0].get_legend_handles_labels()
     h2, l2 = twins[0].get_legend_handles_labels()
-    axes[0][0].legend(h1 + h2, l1 + l2, fontsize=8, loc="upper left", framealpha=0.8)
+    fig.legend(h1 + h2, l1 + l2, fontsize=8, loc="lower center", ncol=len(h1 + h2), frameon=False)
     fig.suptitle("ablation: one setting varied at a time around the defaults")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
