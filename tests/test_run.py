@@ -17,13 +17,14 @@ from amhe_cli.estimation.belief import Belief
 from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
 from amhe_cli.errors import AmheError
 from amhe_cli.control.evaluate import run_settings, summarise
-from amhe_cli.control.gait import GAITS, LEGS, STAND_HEIGHT
-from amhe_cli.control.maneuver import CALF, THIGH
+from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, STAND_HEIGHT
+from amhe_cli.control.maneuver import ABDUCTION_RANGE, CALF, THIGH, leg_fk3, leg_ik3
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.control.planner import PlannerSettings, spline_basis
 from amhe_cli.estimation.sampling import mppi_weights
 from amhe_cli.model.scene import STAND_JOINTS
-from amhe_cli.control.tasks import BASE_HEIGHT, HEAD_REACH, Event, get_task
+from amhe_cli.control.tasks import (BASE_HEIGHT, FOOT_RADIUS, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, Event,
+                                    get_task)
 
 #: small planner: enough to exercise every code path, cheap enough for a test
 SMALL = {"samples": 8, "horizon": 20}
@@ -152,7 +153,50 @@ def test_tripod_front_right_never_in_stance():
     assert c[:, [LEGS.index(n) for n in ("FL", "RR", "RL")]].all()
     ref = tri.reference(T)
     np.testing.assert_allclose(ref[:, 0:3], np.broadcast_to(tri.free_pose, (len(T), 3)))
-    np.testing.assert_allclose(ref[:, 3:], np.broadcast_to(STAND_JOINTS[3:], (len(T), 9)))
+
+
+def stance_feet(ref: np.ndarray) -> np.ndarray:
+    """(4, 3) feet of a (12,) joint reference in the trunk frame [m]."""
+    return np.array([HIP_POS[i] + leg_fk3(ref[3 * i:3 * i + 3], np.sign(HIP_POS[i, 1])) for i in range(4)])
+
+
+def test_tripod_keeps_the_centre_of_mass_inside_its_three_feet():
+    """Standing on FL, RR, RL, the robot's centre of mass (at the trunk origin within 3 mm) lies on the line from
+    FL to RR unless the trunk moves over the feet: the tripod reference shifts it 6 cm inside, feet planted."""
+    tri = GAITS["tripod"]
+    stand = stance_feet(STAND_JOINTS)
+    feet = stance_feet(tri.reference(0.0))
+    # each planted foot is where it stands in the standing pose, seen from a trunk moved by body_shift
+    np.testing.assert_allclose(feet[1:, :2], stand[1:, :2] - np.array(tri.body_shift), atol=1e-9)
+    np.testing.assert_allclose(feet[1:, 2], stand[1:, 2], atol=1e-9)
+    fl, rr, rl = feet[1, :2], feet[2, :2], feet[3, :2]
+    edge = (rr - fl) / np.linalg.norm(rr - fl)
+
+    def side(p):  # signed distance of p from the FL-RR edge
+        return edge[0] * (p - fl)[1] - edge[1] * (p - fl)[0]
+    assert np.sign(side(np.zeros(2))) == np.sign(side(rl)) and abs(side(np.zeros(2))) > 0.05
+
+
+def test_leg_ik3_inverts_mujocos_leg_kinematics():
+    import mujoco
+    from amhe_cli.model.scene import Scene, SceneConfig
+    scene = Scene(SceneConfig())
+    m, d = scene.model, mujoco.MjData(scene.model)
+    rng = np.random.default_rng(0)
+    for leg, i in (("FR", 0), ("RL", 3)):
+        for _ in range(5):
+            q = rng.uniform([-0.8, -0.5, -2.6], [0.8, 1.5, -1.0])
+            d.qpos[:] = 0.0
+            d.qpos[scene.base_qpos[3:]] = [1, 0, 0, 0]
+            d.qpos[scene.joint_qpos[3 * i:3 * i + 3]] = q
+            mujoco.mj_kinematics(m, d)
+            foot = d.geom(f"{leg}_foot").xpos - d.body(f"{leg}_hip").xpos
+            side = np.sign(HIP_POS[i, 1])
+            np.testing.assert_allclose(leg_fk3(q, side), foot, atol=1e-9)
+            np.testing.assert_allclose(leg_ik3(foot, side), q, atol=1e-9)
+    # out of reach: the nearest pose the limits allow, never NaN
+    far = leg_ik3(np.array([0.0, 0.5, -0.1]), -1.0)
+    assert np.isfinite(far).all() and far[0] == pytest.approx(ABDUCTION_RANGE)
 
 
 def test_trot_reference_in_place_keeps_feet_under_hips():
@@ -338,6 +382,65 @@ def test_stage_cost_penalises_a_tipped_box_not_its_yaw():
     assert tipped - level == pytest.approx(task.weights.box_tilt * (1 - np.cos(np.radians(8.0))), rel=1e-9)
 
 
+def test_one_leg_push_reaches_around_the_box_then_presses_its_face():
+    """T5's reach: beside the face behind the box's near side first, then along the face, then pressing it
+    (REACH_PRESS deep) and moving with the push; a turned box is met on its turned face."""
+    task = get_task("t5")
+    box = np.array(task.box_start)
+    half = HALF_DEPTH
+    fr = LEGS.index("FR")
+
+    def world(cmd):  # the reach's foot target in the world (the robot at the origin, facing +x)
+        return cmd["reach"]["foot"][:2]
+    early = task.command(np.zeros(2), 0.0, box, half, t=0.1)
+    assert early["reach"]["phase"] == "reach" and early["speed"] == 0.0
+    foot = world(early)
+    assert foot[0] < box[0] - half - FOOT_RADIUS  # behind the box's near side ...
+    assert foot[1] > box[1] + half + FOOT_RADIUS  # ... and beside its left face: clear of the box
+    push = task.command(np.zeros(2), 0.0, box, half, t=REACH_TIMES[1] + 0.1)
+    r = push["reach"]
+    assert r["phase"] == "push"
+    foot = world(push)
+    assert foot[1] == pytest.approx(box[1] + half + FOOT_RADIUS - REACH_PRESS)  # pressed into the left face
+    assert box[0] - half < foot[0] < box[0] + half  # on the face
+    np.testing.assert_allclose(r["velocity"], [0.0, -push["box_speed"], 0.0], atol=1e-12)  # along the push
+    rel = r["foot"] - HIP_POS[fr]
+    assert np.sum(rel ** 2) - 0.08 ** 2 <= REACH_LEG ** 2 + 1e-12  # a point the leg reaches
+    # the gait turns it into the FR joints whose foot is there
+    ref = GAITS["tripod"].reference(r["t0"], reach=r)
+    np.testing.assert_allclose(HIP_POS[fr] + leg_fk3(ref[:3], -1.0), r["foot"], atol=1e-9)
+    # a box turned by 0.3 rad: the target lies on the turned face (pressed into it along the push)
+    turned = task.command(np.zeros(2), 0.0, box, half, t=REACH_TIMES[1] + 0.1, box_yaw=0.3)
+    normal = np.array([-np.sin(0.3), np.cos(0.3)])
+    assert (world(turned) - box) @ normal == pytest.approx(half + (FOOT_RADIUS - REACH_PRESS) * np.cos(0.3))
+
+
+def test_a_placed_one_leg_push_keeps_the_robot_where_it_stands_and_reaches_the_same():
+    """Placed in a lab (robot at (1, 2) facing +y), T5's stance, heading, push direction and the foot's reach in
+    the trunk frame are the task's own, moved with the robot."""
+    task = get_task("t5")
+    yaw, robot = np.pi / 2, np.array([1.0, 2.0])
+    rot = np.array([[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]])
+    box = robot + rot @ np.array(task.box_start)
+    placed = task.placed(robot, yaw, box)
+    t = REACH_TIMES[1] + 0.1
+    here = task.command(np.zeros(2), 0.0, np.array(task.box_start), HALF_DEPTH, t=t)
+    there = placed.command(robot, yaw, box, HALF_DEPTH, t=t, box_yaw=yaw)
+    np.testing.assert_allclose(there["waypoint"], robot + rot @ here["waypoint"], atol=1e-12)
+    np.testing.assert_allclose(there["direction"], rot @ here["direction"], atol=1e-12)
+    assert there["yaw"] == pytest.approx(yaw)
+    np.testing.assert_allclose(there["reach"]["foot"], here["reach"]["foot"], atol=1e-12)
+    np.testing.assert_allclose(there["reach"]["velocity"], here["reach"]["velocity"], atol=1e-12)
+
+
+def test_one_leg_push_costs_a_turned_box():
+    from amhe_cli.io.quat import quat_from_rotvec
+    task = get_task("t5")
+    level = still_cost(task, box_quat=UPRIGHT)
+    turned = still_cost(task, box_quat=quat_from_rotvec(np.array([0.0, 0.0, 0.4])))
+    assert turned - level == pytest.approx(task.weights.box_yaw * (1 - np.cos(0.4)), rel=1e-9)
+
+
 # -- modes: only the planner's parameters differ ---------------------------------------
 
 def test_modes_differ_only_in_planner_parameters():
@@ -417,6 +520,17 @@ def test_t3_event_reaches_true_mode_planner():
 def t1_true_runs():
     task, settings = run_settings("t1", "true", {"planner": SMALL}, seed=0, threads=1, duration=1.5)
     return task, run_task(task, None, settings), run_task(task, None, settings)
+
+
+def test_t5_one_leg_push_moves_the_box_sideways_on_three_legs():
+    """T5 with the default planner: within 2.5 s the front-right foot has swept the box 15+ cm toward its goal
+    (without its reach the box moved 2-3 cm in 20 s), the robot standing where it was."""
+    task, settings = run_settings("t5", "true", None, seed=0, threads=1, duration=2.5)
+    r = run_task(task, None, settings)
+    box, base = r.traj.box_pos, r.traj.base_pos
+    assert box[0, 1] - box[-1, 1] >= 0.15  # sideways, to the right
+    assert task.goal_error(box[-1, :2]) <= task.goal_error(box[0, :2]) - 0.15
+    assert not r.fell and np.linalg.norm(base[-1, :2] - base[0, :2]) < 0.1
 
 
 def test_t1_closed_loop_makes_progress(t1_true_runs):

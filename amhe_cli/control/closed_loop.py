@@ -374,7 +374,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             t, q, v = m.t, m.qpos, m.qvel
             box_xy = q[sc.box_qpos[:2]]
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
-            cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth)
+            cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth, t=t,
+                               box_yaw=float(quat_to_yaw(q[sc.box_qpos[3:]])))
             if cmd["phase"] != phase:
                 if phase == "push":
                     warn(f"t={t:.2f} s: lost the box, walking back behind it")
@@ -399,7 +400,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])
             box_path.append([t, *box_xy])
-            ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"])
+            ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"))
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
                                                box_quat=q[sc.box_qpos[3:]])))

@@ -17,8 +17,10 @@ through the leg inverse kinematics of :mod:`~amhe_cli.control.maneuver`:
 
 Three gaits cover the tasks (docs/tasks.md): ``trot`` (diagonal pairs, T1–T4),
 ``stand`` (all feet planted) and ``tripod`` (front-right foot free for a
-one-leg push, T5: that leg's reference is a raised, forward-reaching pose and
-the planner moves it freely).
+one-leg push, T5). A free leg's reference is a raised, forward-reaching pose,
+or — where the task gives a *reach* (:meth:`~amhe_cli.control.tasks.Task.command`)
+— the pose whose foot follows the reach's path through the three-joint leg IK
+(:func:`~amhe_cli.control.maneuver.leg_ik3`), which the planner refines.
 """
 
 from __future__ import annotations
@@ -27,13 +29,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from amhe_cli.control.maneuver import leg_ik
+from amhe_cli.control.maneuver import leg_fk3, leg_ik, leg_ik3
 from amhe_cli.model.scene import STAND_JOINTS
 
 #: Leg order of the joint vector (GO1_JOINTS): FR, FL, RR, RL.
 LEGS = ("FR", "FL", "RR", "RL")
 #: Lateral offset of each hip from the trunk's centre line [m] (+ = left).
 HIP_Y = np.array([-0.127, 0.127, -0.127, 0.127])
+#: Position of each leg's abduction joint in the trunk frame [m] (models/go1.xml).
+HIP_POS = np.array([[0.1881, -0.04675, 0.0], [0.1881, 0.04675, 0.0], [-0.1881, -0.04675, 0.0], [-0.1881, 0.04675, 0.0]])
 #: Hip-to-foot height of the gait's stance legs [m]: 1.5 cm above the standing pose's
 #: 0.265, so that PD sag under the trunk's weight leaves the base near its standing height.
 STAND_HEIGHT = 0.28
@@ -61,6 +65,11 @@ class Gait:
             signed) to realise ``u``. 1 and 0: the kinematic reference.
         turn_gain: realised fraction of a yaw rate after the stride model (feet
             slip sideways when the trunk turns); the reference asks ``ω / turn_gain``.
+        body_shift: (2,) trunk offset (x, y) over the planted feet of a standing
+            gait [m]. The tripod's: the robot's centre of mass (0.2 cm from the
+            trunk origin) lies on the line from FL to RR, the edge of the three
+            stance feet's triangle, so the trunk moves back and left by (−4, +5)
+            cm, 6 cm inside it; unshifted, the free foot bore weight and dragged.
     """
 
     name: str = "trot"
@@ -73,6 +82,7 @@ class Gait:
     stride_gain: float = 1.0
     stride_deadband: float = 0.0
     turn_gain: float = 1.0
+    body_shift: tuple = (0.0, 0.0)
 
     @property
     def walking(self) -> bool:
@@ -95,13 +105,17 @@ class Gait:
         c = self.contact(t)
         return int(np.dot(c.astype(int), [1, 2, 4, 8]))
 
-    def reference(self, t: np.ndarray | float, v: float = 0.0, omega: float = 0.0) -> np.ndarray:
+    def reference(self, t: np.ndarray | float, v: float = 0.0, omega: float = 0.0, reach: dict | None = None
+                  ) -> np.ndarray:
         """Joint-position reference at time(s) ``t``.
 
         Args:
             t: time(s) [s], scalar or (N,).
             v: commanded forward speed of the base [m/s].
             omega: commanded yaw rate [rad/s] (steers by unequal step lengths).
+            reach: the free legs' foot path (a task command's ``reach``): ``foot`` (3,)
+                the foot centre at time ``t0`` [s] in the trunk frame [m], moving at
+                ``velocity`` (3,) [m/s]; None: the free legs hold ``free_pose``.
         Returns:
             (..., 12) joint targets [rad] in GO1_JOINTS order.
         """
@@ -121,9 +135,18 @@ class Gait:
             leg = leg_ik(-x, STAND_HEIGHT - lift)  # (..., 4, 2)
             out[..., 1::3] = leg[..., 0]
             out[..., 2::3] = leg[..., 1]
+        if not self.walking and any(self.body_shift):
+            for i in range(4):  # planted feet where they stand, the trunk shifted over them
+                foot = leg_fk3(STAND_JOINTS[3 * i:3 * i + 3], np.sign(HIP_POS[i, 1]))
+                foot[:2] -= self.body_shift
+                out[..., 3 * i:3 * i + 3] = leg_ik3(foot, np.sign(HIP_POS[i, 1]))
         for name in self.free_legs:
             i = LEGS.index(name)
-            out[..., 3 * i:3 * i + 3] = self.free_pose
+            if reach is None:
+                out[..., 3 * i:3 * i + 3] = self.free_pose
+            else:
+                foot = reach["foot"] + np.multiply.outer(t - reach["t0"], reach["velocity"])
+                out[..., 3 * i:3 * i + 3] = leg_ik3(foot - HIP_POS[i], np.sign(HIP_POS[i, 1]))
         return out
 
 
@@ -134,5 +157,5 @@ GAITS = {
     # and turned 32 % of a commanded yaw rate once the stride model was in
     "trot": Gait(stride_gain=0.58, stride_deadband=0.12, turn_gain=0.32),
     "stand": Gait(name="stand", duty=1.0),
-    "tripod": Gait(name="tripod", duty=1.0, free_legs=("FR",)),
+    "tripod": Gait(name="tripod", duty=1.0, free_legs=("FR",), body_shift=(-0.04, 0.05)),
 }

@@ -34,6 +34,48 @@ def leg_ik(dx: np.ndarray | float, height: float = 0.2648) -> np.ndarray:
     return np.stack([phi + alpha, -2.0 * alpha], axis=-1)
 
 
+#: Lateral offset of the thigh from the abduction axis, in the abducted leg's frame [m] (+ left legs).
+HIP_OFFSET = 0.08
+#: Abduction (hip) joint range of the Go1 [rad].
+ABDUCTION_RANGE = 0.863
+
+
+def leg_ik3(foot: np.ndarray, side: float) -> np.ndarray:
+    """Three-joint IK of one Go1 leg: (abduction, thigh, calf) angles [rad] placing its foot.
+
+    The abduction joint turns the leg's sagittal plane about the hip's x axis;
+    in that plane the thigh sits ``side ×`` :data:`HIP_OFFSET` to the side and
+    :func:`leg_ik` places the foot. A point out of reach gets the nearest pose
+    the joint limits and leg length allow (the abduction clipped to
+    ±:data:`ABDUCTION_RANGE`, the leg stretched).
+
+    Args:
+        foot: (..., 3) foot centre relative to the abduction joint, trunk frame (x forward, y left, z up) [m].
+        side: +1 left leg, −1 right leg.
+    Returns:
+        (..., 3) joint angles [rad].
+    """
+    foot = np.asarray(foot, dtype=float)
+    fx, fy, fz = np.moveaxis(foot, -1, 0)
+    off = side * HIP_OFFSET
+    h = np.sqrt(np.maximum(fy ** 2 + fz ** 2 - off ** 2, 1e-6))  # depth below the hip in the leg's plane
+    # (fy, fz) is (off, −h) turned by the abduction angle a about x
+    a = np.arctan2(fz, fy) - np.arctan2(-h, off)
+    a = np.clip(np.angle(np.exp(1j * a)), -ABDUCTION_RANGE, ABDUCTION_RANGE)
+    sagittal = leg_ik(-fx, h)
+    return np.concatenate([a[..., None], sagittal], axis=-1)
+
+
+def leg_fk3(joints: np.ndarray, side: float) -> np.ndarray:
+    """(..., 3) foot centre relative to the abduction joint [m] of (..., 3) leg joint angles (:func:`leg_ik3`'s
+    inverse; ``side`` +1 left, −1 right)."""
+    a, t1, t2 = np.moveaxis(np.asarray(joints, dtype=float), -1, 0)
+    x = -THIGH * np.sin(t1) - CALF * np.sin(t1 + t2)
+    z = -THIGH * np.cos(t1) - CALF * np.cos(t1 + t2)
+    y0 = side * HIP_OFFSET
+    return np.stack([x, y0 * np.cos(a) - z * np.sin(a), y0 * np.sin(a) + z * np.cos(a)], axis=-1)
+
+
 def body_shift_targets(dx: np.ndarray | float, height: float = 0.2648) -> np.ndarray:
     """(…, 12) joint targets that shift the trunk forward by ``dx`` [m] over planted feet."""
     leg = leg_ik(dx, height)

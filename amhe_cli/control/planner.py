@@ -244,7 +244,7 @@ class Planner:
         t0 = time.perf_counter()
         s = self.settings
         self._shift(t)
-        ref = self.gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"])
+        ref = self.gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"], cmd.get("reach"))
         mode = self.gait.mode(t)
         refine = mode != self._mode
         self._mode = mode

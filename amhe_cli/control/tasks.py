@@ -34,7 +34,8 @@ from dataclasses import asdict, dataclass, field, fields, replace
 import numpy as np
 
 from amhe_cli.errors import AmheError, check_names
-from amhe_cli.control.gait import GAITS, Gait
+from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, Gait
+from amhe_cli.control.maneuver import HIP_OFFSET
 from amhe_cli.io.quat import quat_to_yaw
 
 #: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
@@ -57,6 +58,26 @@ APPROACH_MARGIN = 0.15
 TURN_IN_PLACE = 0.6
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
 BASE_HEIGHT = 0.265
+#: One-leg push (T5): the free foot's centre this far below the trunk origin [m] (about 7 cm above the
+#: floor). A low foot reaches further across under the abduction limit (the sweep's start), a higher one
+#: further out before the calf's limit stretches the leg (its end; 0.384 m, not thigh + calf 0.426). 0.22 or
+#: 0.18 throughout, or 0.22 -> 0.17 over the sweep, left the box 18-20 cm from its goal where 0.20 left it
+#: 15 cm (4 seeds, 8 s, true mode).
+REACH_DEPTH = 0.20
+#: One-leg push: the foot meets the box's face at most this far in from the face's end nearest the robot [m].
+REACH_INSET = 0.05
+#: One-leg push: the longest hip-to-foot distance the reach asks of the leg [m]. Beyond the 0.384 m it
+#: can stretch, so the contact sits nearer the face's centre and turns the box less; 0.38 and 0.42 left
+#: the box 2 cm further from its goal (4 seeds, 8 s, true mode).
+REACH_LEG = 0.40
+#: One-leg push: the foot's reference presses this far into the face [m] (the PD servo's push), and
+#: keeps this clearance from it before contact [m].
+REACH_PRESS, REACH_CLEARANCE = 0.02, 0.03
+#: One-leg push: the reach's phases end at these times [s]: to beside the box's face behind its near
+#: end (clear of the box), then along the face to the contact point; the push follows.
+REACH_TIMES = (0.6, 1.2)
+#: Radius of a Go1 foot sphere [m] (models/go1.xml).
+FOOT_RADIUS = 0.023
 
 
 @dataclass
@@ -76,6 +97,13 @@ class CostWeights:
     #: pushed at height h, a box tips once μ·h exceeds half its depth (T4's μ 0.8 floor: h > 0.24 m, below
     #: the head) and jams against the robot; with this term T4 true mode went from 6/8 to 8/8 seeds
     box_tilt: float = 300.0
+    #: one-leg push (T5) only: the box's yaw away from its yaw at the cycle start. A push off the face's
+    #: centre turns the box, and a box turned by 40° slid off the foot and stopped (T5 true, seed 0)
+    box_yaw: float = 50.0
+    #: one-leg push (T5) only, in place of ``waypoint``: the trunk's distance from its stance over the three
+    #: planted feet. At the walking tasks' 20 the planner leaned the trunk 8 cm toward the box, out of the
+    #: feet's triangle, and the pushing foot went down to bear weight and dragged on the floor
+    stance: float = 200.0
     angvel: float = 0.5
     effort: float = 0.2
     fall: float = 1000.0
@@ -119,6 +147,8 @@ class Task:
         success_radius: final goal error counted as success [m].
         slow_radius: the commanded speed falls linearly to 0 over this last distance [m].
         push_side: T5's lateral push direction (+1 left, −1 right); 0 otherwise.
+        robot_pose: where the robot starts, (x [m], y [m], yaw [rad]): the
+            one-leg push keeps the trunk there (over its three planted feet).
         weights: :class:`CostWeights`.
         fall_height: base height under which the robot counts as fallen [m].
     """
@@ -137,6 +167,7 @@ class Task:
     success_radius: float = 0.2
     slow_radius: float = 0.3
     push_side: int = 0
+    robot_pose: tuple = (0.0, 0.0, 0.0)
     weights: CostWeights = field(default_factory=CostWeights)
     fall_height: float = 0.15
     #: base height under which a rollout is penalised as falling [m]
@@ -162,7 +193,7 @@ class Task:
         mass switch or floor change) are dropped: the real world has its own.
 
         Args:
-            robot_xy: (2,) measured trunk position [m] (only its heading is used).
+            robot_xy: (2,) measured trunk position [m] (where the one-leg push keeps it).
             robot_yaw: measured trunk yaw [rad].
             box_xy: (2,) measured box centre [m].
             goal: optional (2,) goal in the world [m].
@@ -179,7 +210,8 @@ class Task:
             cx, cy, r, arc = self.circle
             circle = (*move((cx, cy)), r, arc)
         new_goal = tuple(float(x) for x in goal) if goal is not None else move(self.goal)
-        return replace(self, box_start=tuple(float(x) for x in box), goal=new_goal, circle=circle, events=())
+        return replace(self, box_start=tuple(float(x) for x in box), goal=new_goal, circle=circle, events=(),
+                       robot_pose=(*(float(x) for x in np.asarray(robot_xy, dtype=float)[:2]), float(robot_yaw)))
 
     # -- targets -------------------------------------------------------------
     def box_target(self, box_xy: np.ndarray) -> np.ndarray:
@@ -198,7 +230,7 @@ class Task:
         return float(np.linalg.norm(np.asarray(box_xy)[:2] - np.asarray(self.goal)))
 
     def command(self, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, half_depth: float,
-                half_width: float | None = None) -> dict:
+                half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0) -> dict:
         """Per-cycle targets for the planner's cost and the gait.
 
         Walking tasks have two phases, chosen from where the robot stands in the
@@ -216,17 +248,24 @@ class Task:
           the way — turning on the spot while the heading error exceeds
           :data:`TURN_IN_PLACE`; the box's reference holds still.
 
+        The one-leg push (``push_side``, T5) keeps the robot where it stands and
+        gives the free leg a **reach** (:meth:`reach`): to beside the box's face,
+        along it to the contact point, then sweeping with the face along the push.
+
         Args:
             base_xy, base_yaw: the robot's current planar pose [m], [rad].
             box_xy: the box centre [m].
             half_depth: half the box's extent along the push [m].
             half_width: half its extent across the push [m] (default: ``half_depth``).
+            t: time since the task started [s] (the one-leg push's reach phases).
+            box_yaw: the box's yaw [rad] (the one-leg push: which face the foot meets).
         Returns:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
             for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
-            of its reference, ``phase`` ``"push"`` or ``"approach"``.
+            of its reference, ``phase`` ``"push"`` or ``"approach"``; the one-leg
+            push adds ``reach`` (see :meth:`reach`) and ``box_yaw`` (the box's yaw now, [rad]).
         """
         half_width = half_depth if half_width is None else half_width
         base_xy, box_xy = np.asarray(base_xy, float), np.asarray(box_xy, float)
@@ -236,8 +275,15 @@ class Task:
         box_speed = self.box_speed * max(slow, 0.1)
         out = {"target": target, "box": box_xy.copy(), "box_speed": box_speed, "phase": "push"}
         if self.push_side:  # T5: robot stays; box goes sideways
-            return {**out, "direction": np.array([0.0, float(self.push_side)]), "waypoint": np.zeros(2),
-                    "yaw": 0.0, "speed": 0.0, "omega": 0.0}
+            d = np.subtract(self.goal, self.box_start)
+            d = d / max(float(np.linalg.norm(d)), 1e-9)  # along the push, fixed in the world
+            x0, y0, yaw0 = self.robot_pose
+            c, s_ = np.cos(yaw0), np.sin(yaw0)
+            bx, by = self.gait_spec.body_shift  # the trunk's stance over the three planted feet
+            stance = np.array([x0 + c * bx - s_ * by, y0 + s_ * bx + c * by])
+            reach = self.reach(t, base_xy, base_yaw, box_xy, box_yaw, d, half_depth, half_width, box_speed)
+            return {**out, "direction": d, "waypoint": stance, "yaw": float(yaw0), "speed": 0.0, "omega": 0.0,
+                    "box_yaw": float(box_yaw), "reach": reach}
         delta = target - box_xy
         dist = float(np.linalg.norm(delta))
         d = delta / dist if dist > 1e-6 else np.array([np.cos(base_yaw), np.sin(base_yaw)])
@@ -263,6 +309,71 @@ class Task:
         return {**out, "direction": d, "waypoint": waypoint, "yaw": yaw, "speed": speed,
                 "omega": _turn(yaw, base_yaw), "box_speed": 0.0, "phase": "approach"}
 
+    def reach(self, t: float, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, box_yaw: float,
+              direction: np.ndarray, half_x: float, half_y: float, speed: float) -> dict:
+        """The free foot's path for a one-leg push (T5), in the trunk frame.
+
+        The foot pushes the box's face that looks most against ``direction`` (the
+        box's yaw counts: a turned box is met on its turned face), with its centre
+        :data:`REACH_DEPTH` below the trunk origin, at the point of the face
+        nearest its centre that the leg still reaches (:data:`REACH_LEG`; at most
+        :data:`REACH_INSET` in from the face's end nearest the robot): a push off
+        the centre turns the box, and the leg reaches less far along the face the
+        further it has swept. By phase (:data:`REACH_TIMES`): until the first
+        time, beside the face but behind the box's near side (the leg clear of
+        the box); until the second, moving along the face to
+        :data:`REACH_CLEARANCE` off the contact point; then pressing
+        :data:`REACH_PRESS` into the face and moving with it along ``direction``
+        at the box's reference ``speed`` — the sweep the planner refines. The
+        face follows the box's measured pose each cycle.
+
+        Args:
+            t: time since the task started [s].
+            base_xy, base_yaw: trunk position [m] and yaw [rad].
+            box_xy: box centre [m]; box_yaw: its yaw [rad]; direction: (2,) unit push direction (world).
+            half_x, half_y: half the box's extent along its own x and y axes [m].
+            speed: the box reference's speed [m/s].
+        Returns:
+            dict ``foot`` (3,) [m] the foot centre at ``t0`` [s] in the trunk frame,
+            ``velocity`` (3,) [m/s] in the trunk frame, ``t0``, ``phase``
+            (``"reach"`` or ``"push"``): :meth:`~amhe_cli.control.gait.Gait.reference`'s ``reach``.
+        """
+        d = np.asarray(direction, dtype=float)
+        box_xy, base_xy = np.asarray(box_xy, dtype=float), np.asarray(base_xy, dtype=float)
+        # the box's face normals (outward); the pushed face is the one most against the push
+        normals = np.array([[np.cos(box_yaw + k * np.pi / 2), np.sin(box_yaw + k * np.pi / 2)] for k in range(4)])
+        k = int(np.argmin(normals @ d))
+        normal = normals[k]
+        along = np.array([-normal[1], normal[0]])  # along the face, toward the robot's side of the box
+        if along @ (base_xy - box_xy) < 0:
+            along = -along
+        half_n, half_a = (half_x, half_y) if k % 2 == 0 else (half_y, half_x)
+        c, s_ = np.cos(base_yaw), np.sin(base_yaw)
+
+        def trunk(p):  # world (..., 2) -> trunk frame (..., 3), at the reach depth
+            rel = np.asarray(p) - base_xy
+            x, y = c * rel[..., 0] + s_ * rel[..., 1], -s_ * rel[..., 0] + c * rel[..., 1]
+            return np.stack([x, y, np.full_like(x, -REACH_DEPTH)], axis=-1)
+        # the contact: from the face's centre toward its near end, the first point the leg reaches
+        offsets = np.linspace(0.0, half_a - REACH_INSET, 25)
+        points = box_xy + normal * half_n + along * offsets[:, None]
+        rel = trunk(points - d * (FOOT_RADIUS - REACH_PRESS)) - HIP_POS[LEGS.index(self.gait_spec.free_legs[0])]
+        ok = np.sum(rel ** 2, axis=-1) - HIP_OFFSET ** 2 <= REACH_LEG ** 2
+        contact = points[int(np.argmax(ok))] if ok.any() else points[-1]
+        pre = contact - d * (FOOT_RADIUS + REACH_CLEARANCE)
+        behind = pre + along * (half_a + FOOT_RADIUS + REACH_CLEARANCE - np.linalg.norm(contact - points[0]))
+        zero = np.zeros(3)
+        if t < REACH_TIMES[0]:
+            return {"foot": trunk(behind), "velocity": zero, "t0": float(t), "phase": "reach"}
+        if t < REACH_TIMES[1]:
+            span = REACH_TIMES[1] - REACH_TIMES[0]
+            a, b = trunk(behind), trunk(pre)
+            return {"foot": a + (b - a) * (t - REACH_TIMES[0]) / span, "velocity": (b - a) / span,
+                    "t0": float(t), "phase": "reach"}
+        foot = trunk(contact - d * (FOOT_RADIUS - REACH_PRESS))
+        vel = np.array([c * d[0] + s_ * d[1], -s_ * d[0] + c * d[1], 0.0]) * speed
+        return {"foot": foot, "velocity": vel, "t0": float(t), "phase": "push"}
+
     # -- cost ------------------------------------------------------------------
     def stage_cost(self, base_pos: np.ndarray, base_quat: np.ndarray, base_vel: np.ndarray, base_angvel: np.ndarray,
                    box_pos: np.ndarray, ctrl: np.ndarray, ref: np.ndarray, cmd: dict, tau: np.ndarray | float = 0.0,
@@ -287,10 +398,9 @@ class Task:
         w = self.weights
         yaw = quat_to_yaw(base_quat)
         c = self._box_term(box_pos, cmd, tau)
-        c += w.waypoint * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
+        c += (w.stance if self.push_side else w.waypoint) * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
         heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
-        if not self.push_side:
-            c += w.heading * (1 - np.cos(yaw - cmd["yaw"]))
+        c += w.heading * (1 - np.cos(yaw - cmd["yaw"]))
         c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
         c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]) ** 2
         height = base_pos[..., 2] - floor
@@ -300,6 +410,8 @@ class Task:
         c += w.fall * (height < self.unsafe_height)
         if box_quat is not None:
             c += w.box_tilt * _tilt(box_quat)
+            if "box_yaw" in cmd:
+                c += w.box_yaw * (1 - np.cos(quat_to_yaw(box_quat) - cmd["box_yaw"]))
         return c
 
     def _box_term(self, box_pos: np.ndarray, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
@@ -347,7 +459,9 @@ TASKS = {
                duration=60.0),
     "t4": Task("t4", box_start=(0.52, 0.0), goal=(2.5, 0.0), truth={"box_mass": 4.0, "box_friction": 0.4},
                events=(Event("box_friction", 0.8, box_x=1.5),), duration=60.0),
-    "t5": Task("t5", box_start=(0.45, -0.05), goal=(0.45, -0.55), gait="tripod", speed=0.0, push_side=-1,
+    # T5: the box ahead and to the right, its left face where the front-right foot's sweep begins
+    # (its centre 0.2 m below the trunk reaches y = +0.06 m at the abduction limit)
+    "t5": Task("t5", box_start=(0.49, -0.18), goal=(0.49, -0.68), gait="tripod", speed=0.0, push_side=-1,
                duration=20.0),
 }
 
