@@ -26,12 +26,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import mujoco
 import numpy as np
 
 from amhe_cli.io.quat import quat_rotate
 from amhe_cli.io.trajectory import Trajectory
-from amhe_cli.model.scene import FEET, Scene
+from amhe_cli.model.scene import Scene
 
 #: Shifts searched [s] (± this).
 MAX_OFFSET = 0.05
@@ -67,16 +66,10 @@ class OffsetFit:
 
 def foot_positions_in_base(scene: Scene, joint_pos: np.ndarray) -> np.ndarray:
     """(T, 4, 3) foot centres in the trunk frame [m] for (T, 12) joint angles (forward kinematics)."""
-    m = scene.model
-    d = mujoco.MjData(m)
-    gids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET]
-    d.qpos[scene.base_qpos] = [0, 0, 0, 1, 0, 0, 0]
-    out = np.empty((len(joint_pos), 4, 3))
-    for i, q in enumerate(joint_pos):
-        d.qpos[scene.joint_qpos] = q
-        mujoco.mj_kinematics(m, d)
-        out[i] = d.geom_xpos[gids]
-    return out
+    qpos = np.tile(scene.model.qpos0, (len(joint_pos), 1))
+    qpos[:, scene.base_qpos] = [0, 0, 0, 1, 0, 0, 0]  # the trunk at the origin, unturned
+    qpos[:, scene.joint_qpos] = joint_pos
+    return scene.foot_centres(qpos)
 
 
 def mocap_offset(traj: Trajectory, scene: Scene, max_offset: float = MAX_OFFSET) -> OffsetFit | None:

@@ -208,17 +208,22 @@ class Scene:
         qpos[self.box_qpos[3:]] = [1, 0, 0, 0]
         return qpos, np.zeros(m.nv)
 
-    def foot_bottoms(self, qpos: np.ndarray) -> np.ndarray:
-        """(N, 4) z of the lowest point of each foot sphere [m] for (N, nq) states."""
+    def foot_centres(self, qpos: np.ndarray) -> np.ndarray:
+        """(N, 4) × 3 world positions of the foot-sphere centres [m] (:data:`FEET` order) for (N, nq) states."""
         m = self.model
         d = mujoco.MjData(m)
         gids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET]
-        out = np.empty((len(qpos), 4))
-        for i, q in enumerate(np.atleast_2d(qpos)):
+        qpos = np.atleast_2d(qpos)
+        out = np.empty((len(qpos), 4, 3))
+        for i, q in enumerate(qpos):
             d.qpos[:] = q
             mujoco.mj_kinematics(m, d)
-            out[i] = d.geom_xpos[gids, 2] - FOOT_RADIUS
+            out[i] = d.geom_xpos[gids]
         return out
+
+    def foot_bottoms(self, qpos: np.ndarray) -> np.ndarray:
+        """(N, 4) z of the lowest point of each foot sphere [m] for (N, nq) states."""
+        return self.foot_centres(qpos)[..., 2] - FOOT_RADIUS
 
 
 def resting_offsets(scene: "Scene") -> tuple[float, float]:
