@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.signal import savgol_filter
+from scipy.stats import median_abs_deviation
 
 #: Noise below this is what clean 2 ms simulations show (a simulated push log: base 4e-6 m, 2.5e-5 rad
 #: of real gait motion): leave it. [m] for positions, [rad] for orientations.
@@ -47,8 +48,7 @@ def noise_sigma(x: np.ndarray) -> np.ndarray:
     if len(x) < 5:
         return np.zeros(x.shape[1])
     d2 = x[2:] - 2 * x[1:-1] + x[:-2]
-    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
-    return 1.4826 * mad / np.sqrt(6.0)
+    return median_abs_deviation(d2, axis=0, scale="normal") / np.sqrt(6.0)
 
 
 def window_for(sigma: float, dt: float, target: float = TARGET_VEL_SIGMA, clean: float = CLEAN_SIGMA) -> int:
