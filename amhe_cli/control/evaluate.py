@@ -202,11 +202,10 @@ def evaluate(task_name: str, modes, seeds: int, belief: Belief | None, config: d
     if belief is None and set(modes) - {"true"}:
         raise AmheError("baseline and adaptive modes need a belief")
     variants = variants or [("", config)]
-    for _, cfg in variants:
-        run_settings(task_name, modes[0], cfg, duration=duration)  # validate before forking
     done = done or set()
     # variants whose settings coincide (each swept setting's default value) run once, their row
-    # copied under every label: a 4-setting ablation around the defaults saves 3 grids of runs
+    # copied under every label: a 4-setting ablation around the defaults saves 3 grids of runs.
+    # Building the key validates each config before any worker starts.
     labels = {}  # effective settings -> labels sharing them
     for label, cfg in variants:
         labels.setdefault(_settings_key(task_name, cfg, duration), []).append((label, cfg))
