@@ -209,7 +209,7 @@ class Scene:
         return qpos, np.zeros(m.nv)
 
     def foot_centres(self, qpos: np.ndarray) -> np.ndarray:
-        """(N, 4) × 3 world positions of the foot-sphere centres [m] (:data:`FEET` order) for (N, nq) states."""
+        """(N, 4, 3) world positions of the foot-sphere centres [m] (:data:`FEET` order) for (N, nq) states."""
         m = self.model
         d = mujoco.MjData(m)
         gids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET]
