@@ -74,6 +74,16 @@ class IdentifySettings:
             logs either way) and a truer σ (2σ coverage 92 % against 84 %) in
             0.70 of the time (one thread each on 16 cores; on 2 cores, ``amhe
             identify`` on a 20 s log: 32.8 s against 42.2 s, median of 3).
+            Then 24 against 30, on the same 8 seeds × 5 logs: no log worse
+            beyond its seed-to-seed spread (noisy log: worst mass 9.3 % against
+            11.6 %, μ 0.040 against 0.050; mismatched robot: median 4.9 %
+            against 6.2 %), 2σ coverage 95.5 % against 94.5 %, in 0.85 of the
+            time (2 cores, ``amhe identify`` on a 20 s log: 31.9 s against
+            37.5 s, medians of 3 in one session). What did not hold: popsize 10
+            (worst mass 18.5 %, coverage 87 %), and the first 8 generations on
+            every other clip (0.67 of the time; noisy log worst 12.6 %, μ
+            0.053): on these rough costs the seed-to-seed spread is CMA-ES's
+            path, and a cheaper early search moves it.
         sigma0: initial CMA-ES step in prior-σ units.
         tolx: stop when every coordinate's CMA-ES step is below this, in
             prior-σ units (3e-3: 9 g of mass, 0.0015 of friction at the
@@ -91,7 +101,7 @@ class IdentifySettings:
     n_clips: int = 32
     horizon: tuple = (0.1, 0.2)
     popsize: int = 12
-    max_gen: int = 30
+    max_gen: int = 24
     sigma0: float = 0.3
     tolx: float = 3e-3
     prior_weight: float = 1.0
