@@ -184,3 +184,32 @@ def test_coverage_counts_intervals_that_hold_the_truth():
     assert got[:, 0].mean() == pytest.approx(2 / 3)
     with pytest.raises(ValueError):
         coverage(est, -std, np.array([1.1, 0.5]))
+
+
+def test_mhe_skips_a_box_at_rest_that_only_noise_moves(tmp_path):
+    """With 1 mm of pose noise a resting box reads a speed, so its clips pass the MHE's speed test;
+    the travel test (the noise's own scale, from the log) drops them and keeps the bumps."""
+    from amhe_cli.estimation.clips import box_travel, window_clips
+    from amhe_cli.estimation.mhe import MHESettings, rest_travel
+    traj = _lunge_log()
+    rng = np.random.default_rng(1)
+    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, 0.001, traj.box_pos.shape), meta={})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the smoothing notice
+        read = read_log(write_mcap(tmp_path / "noisy.mcap", noisy))
+        clean = read_log(write_mcap(tmp_path / "clean.mcap", replace(traj, meta={})))
+    assert rest_travel(clean) == 0.0
+    travel = rest_travel(read)
+    assert 0.001 < travel < 0.01
+    scene = Scene(SceneConfig())
+    s = MHESettings()
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
+    first = int(np.argmax(speed > 0.05))  # the first bump
+    assert first > 250
+    rest = (0, first - 50)  # the box at rest, only noise on its pose
+    clip = int(round(s.clip / read.dt))
+    assert window_clips(read, scene, *rest, clip, s.max_steps, s.min_speed) is not None  # noise passes
+    assert window_clips(read, scene, *rest, clip, s.max_steps, s.min_speed, travel) is None
+    bump = (first - 50, first + 200)
+    kept = window_clips(read, scene, *bump, clip, s.max_steps, s.min_speed, travel)
+    assert kept is not None and np.all(box_travel(read, kept.start, kept.horizon) > travel)

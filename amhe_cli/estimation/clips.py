@@ -99,6 +99,11 @@ def make_clips(traj: Trajectory, scene: Scene, starts, horizons) -> Clips:
     return Clips(starts, horizons, initial, control, qpos, qvel, observed, float(traj.dt))
 
 
+#: Lever arm [m] that turns the box's yaw rate into a speed in :func:`excitation` and :func:`box_travel`
+#: (half the edge of the default 0.38 m box: how fast its sides move when it turns).
+LEVER = 0.19
+
+
 def excitation(traj: Trajectory, window: int) -> np.ndarray:
     """(T,) how informative a clip starting at each sample is likely to be.
 
@@ -106,7 +111,7 @@ def excitation(traj: Trajectory, window: int) -> np.ndarray:
     the window that follows: high where the box is pushed or slides, zero where
     it rests.
     """
-    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1) + 0.19 * np.abs(traj.box_angvel[:, 2])
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1) + LEVER * np.abs(traj.box_angvel[:, 2])
     change = np.abs(np.roll(speed, -window) - speed)
     change[-window:] = 0.0
     score = speed + change
@@ -157,14 +162,25 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     return make_clips(traj, scene, starts, horizons)
 
 
+def box_travel(traj: Trajectory, starts: np.ndarray, horizons: np.ndarray) -> np.ndarray:
+    """(N,) how far the box went over each clip [m]: its centre's net horizontal displacement plus
+    :data:`LEVER` × the angle it turned, from sample ``starts`` to ``starts + horizons``."""
+    a, b = np.asarray(starts), np.asarray(starts) + np.asarray(horizons)
+    shift = np.linalg.norm(traj.box_pos[b, :2] - traj.box_pos[a, :2], axis=1)
+    dot = np.clip(np.abs(np.sum(traj.box_quat[a] * traj.box_quat[b], axis=1)), 0.0, 1.0)
+    return shift + LEVER * 2.0 * np.arccos(dot)
+
+
 def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_steps: int | None,
-                 max_steps: int | None = None, min_speed: float = 0.0) -> Clips | None:
+                 max_steps: int | None = None, min_speed: float = 0.0, min_travel: float = 0.0) -> Clips | None:
     """The clips of an estimation window, samples ``start`` to ``stop`` (exclusive).
 
     The window is tiled with consecutive clips of ``clip_steps`` steps, each
     reset to the recorded state (multiple shooting), or rolled out in one piece
-    with ``clip_steps=None`` (the paper's eq. 4). Clips that cross a gap, or
-    whose :func:`excitation` is not above ``min_speed`` [m/s], are dropped; of
+    with ``clip_steps=None`` (the paper's eq. 4). Clips that cross a gap, whose
+    :func:`excitation` is not above ``min_speed`` [m/s], or over which the box
+    went no further than ``min_travel`` [m] (:func:`box_travel`: a box at rest
+    under motion-capture noise reads a speed but goes nowhere) are dropped; of
     the rest, the most excited are kept up to ``max_steps`` simulated steps.
 
     Returns:
@@ -180,6 +196,8 @@ def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_ste
     keep = np.array([valid[a:a + h + 1].all() for a, h in zip(starts, horizons)], dtype=bool)
     score = excitation(traj.slice(start, stop), max(1, step))[starts - start]
     keep &= score > min_speed
+    if min_travel > 0:
+        keep &= box_travel(traj, starts, horizons) > min_travel
     if not keep.any():
         return None
     starts, horizons, score = starts[keep], horizons[keep], score[keep]
