@@ -213,3 +213,32 @@ def test_mhe_skips_a_box_at_rest_that_only_noise_moves(tmp_path):
     bump = (first - 50, first + 200)
     kept = window_clips(read, scene, *bump, clip, s.max_steps, s.min_speed, travel)
     assert kept is not None and np.all(box_travel(read, kept.start, kept.horizon) > travel)
+
+
+def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_path):
+    """The velocity noise predicted from the log's measured pose noise and smoothing window is what a
+    resting box's read velocity shows; the MHE's clips grow with it so friction shows through it."""
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, noise_clip
+    from amhe_cli.io.smoothing import velocity_noise
+    traj = _lunge_log()
+    rng = np.random.default_rng(2)
+    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, 0.001, traj.box_pos.shape), meta={})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the smoothing notice
+        read = read_log(write_mcap(tmp_path / "noisy.mcap", noisy))
+        clean = read_log(write_mcap(tmp_path / "clean.mcap", replace(traj, meta={})))
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
+    rest = slice(50, int(np.argmax(speed > 0.05)) - 50)  # the box at rest before the first bump
+    seen = read.box_linvel[rest, :2].std()
+    predicted = velocity_noise(read.meta, "box", read.dt)
+    assert predicted == pytest.approx(seen, rel=0.15)
+    assert velocity_noise(clean.meta, "box", clean.dt) == 0.0 and noise_clip(clean) == 0.0
+    assert noise_clip(read) == pytest.approx(4 * predicted / (0.05 * 9.81))
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+    with MovingHorizonEstimator(scene, space, MHESettings(window=1.0, max_steps=10_000), nthread=1) as m:
+        stop = int(np.argmax(speed > 0.05)) + 200
+        long_clips = m.window_clips(read, stop)
+        short_clips = m.window_clips(clean, stop)
+    want = int(round(min(max(0.1, noise_clip(read)), 1.0) / read.dt))
+    assert long_clips.horizon.max() == want > short_clips.horizon.max() == int(round(0.1 / read.dt))

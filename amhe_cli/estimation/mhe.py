@@ -38,7 +38,7 @@ from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step
 from amhe_cli.model.scene import Scene
-from amhe_cli.io.smoothing import CLEAN_SIGMA, CLEAN_SIGMA_ROT, pose_noise
+from amhe_cli.io.smoothing import CLEAN_SIGMA, CLEAN_SIGMA_ROT, pose_noise, velocity_noise
 from amhe_cli.io.trajectory import Trajectory
 
 #: Default ``W_p`` pull standard deviations per parameter (physical units; inertia as shape ratio).
@@ -68,6 +68,30 @@ def rest_travel(traj: Trajectory) -> float:
     return float(REST_SIGMAS * np.sqrt(2.0) * np.hypot(pos, LEVER * rot))
 
 
+#: Friction resolution [-] a clip must reach against the noise of its recorded initial velocity, in
+#: :data:`CLIP_SIGMAS` standard deviations (:func:`noise_clip`).
+CLIP_MU, CLIP_SIGMAS = 0.05, 2.0
+GRAVITY = 9.81
+
+
+def noise_clip(traj: Trajectory) -> float:
+    """Shortest clip [s] over which friction shows through the noise of the box's initial velocity (0 if clean).
+
+    A clip starts from the recorded velocity, off by σ_v (the log's measured
+    velocity noise, :func:`~amhe_cli.io.smoothing.velocity_noise`); over T
+    seconds that moves the box by σ_v·T, while a friction off by Δμ moves it
+    by ½·Δμ·g·T². Friction shows at :data:`CLIP_MU` once
+    ``½ Δμ g T² ≥ CLIP_SIGMAS · σ_v T``, i.e. ``T = 2 · CLIP_SIGMAS · σ_v / (Δμ g)``:
+    0.31 s on ``noisy_b`` (σ_v 0.039 m/s). *Measured* there
+    (``benchmarks/mhe_accuracy.py --sliding``, 8 seeds, worst friction error
+    from 3 s after the box first slid): fixed 0.1 s clips 0.23, 0.2 s 0.15,
+    0.3 s 0.096, 0.4 s 0.19; this rule 0.052–0.105 per seed (median 0.068)
+    at 150, 300 or 600 steps, the clean mass-switch log unchanged.
+    """
+    sigma_v = velocity_noise(traj.meta, "box", traj.dt)
+    return 2.0 * CLIP_SIGMAS * sigma_v / (CLIP_MU * GRAVITY)
+
+
 @dataclass
 class MHESettings:
     """Hyper-parameters of the estimator (paper Algorithm 1), with units.
@@ -88,6 +112,8 @@ class MHESettings:
             mass-switch log, box 4 → 6 kg at 10 s): one piece met the targets in 0/6 runs at real-time
             factor 0.38, 0.1 s clips in 4/6 at 1.12 (one thread each) — an
             open-loop second drifts on contact details the clips reset.
+            On a log with pose noise the clips are longer where its velocity
+            noise asks (:func:`noise_clip`, at most ``window``).
         max_steps: simulated steps per candidate per update (the most excited clips are kept).
         min_speed: box speed [m/s] below which a clip is considered at rest (uninformative).
         seed: sampling seed.
@@ -194,7 +220,8 @@ class MovingHorizonEstimator:
         """Clips of the window ending at sample ``stop`` (exclusive), or None if it is uninformative."""
         s = self.settings
         start = max(0, stop - int(round(s.window / traj.dt)))
-        clip_steps = None if s.clip is None else int(round(s.clip / traj.dt))
+        clip = None if s.clip is None else min(max(s.clip, noise_clip(traj)), s.window)
+        clip_steps = None if clip is None else int(round(clip / traj.dt))
         return window_clips(traj, self.scene, start, stop, clip_steps, s.max_steps, s.min_speed,
                             rest_travel(traj))
 
