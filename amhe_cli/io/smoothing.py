@@ -95,6 +95,20 @@ def savgol(x: np.ndarray, window: int, dt: float, order: int = 2) -> tuple[np.nd
     return val, der
 
 
+
+def _window_samples(meta: dict, role: str, dt: float, noise: str, window: str) -> tuple[float, float, float]:
+    """(σ, the stream's own sample period h [s], its samples n within the smoothing window) of one pose
+    component (``position_noise_m``/``position_window`` or the orientation's) of ``role``, from what
+    ``read_log`` measured (``meta["sensors"]``, ``meta["smoothing"]``); the window counts samples of the
+    trajectory's step ``dt`` [s], the stream's measured ``rate_hz`` gives h (``dt`` if unknown)."""
+    stream = meta.get("sensors", {}).get("streams", {}).get(role, {})
+    smoothed = meta.get("smoothing", {}).get(role) or {}
+    sigma = float(smoothed.get(noise, stream.get(noise, 0.0)) or 0.0)
+    rate = float(stream.get("rate_hz", 0.0) or 0.0)
+    step = 1.0 / rate if rate > 0 else dt
+    return sigma, step, int(smoothed.get(window, 1)) * dt / step
+
+
 def pose_noise(meta: dict, role: str, dt: float) -> tuple[float, float]:
     """(position [m], orientation [rad]) noise of a free body's (``"box"``, ``"base"``) poses as read.
 
@@ -107,14 +121,9 @@ def pose_noise(meta: dict, role: str, dt: float) -> tuple[float, float]:
     capture smoothed over 42 ms). (0, 0) where the log holds no noise figure
     (a simulated or live trajectory).
     """
-    stream = meta.get("sensors", {}).get("streams", {}).get(role, {})
-    smoothed = meta.get("smoothing", {}).get(role) or {}
-    rate = float(stream.get("rate_hz", 0.0) or 0.0)
-    step = 1.0 / rate if rate > 0 else dt  # the stream's own sample period
     out = []
     for noise, window in (("position_noise_m", "position_window"), ("orientation_noise_rad", "orientation_window")):
-        sigma = float(smoothed.get(noise, stream.get(noise, 0.0)) or 0.0)
-        n = int(smoothed.get(window, 1)) * dt / step
+        sigma, _, n = _window_samples(meta, role, dt, noise, window)
         factor = 3 * (3 * n * n - 7) / (4 * n * (n * n - 4)) if n >= 5 else 1.0
         out.append(sigma * np.sqrt(min(factor, 1.0)))
     return out[0], out[1]
@@ -125,20 +134,14 @@ def velocity_noise(meta: dict, role: str, dt: float) -> float:
 
     The velocity is the slope of the smoothing fit (:func:`savgol`), so its
     noise is a least-squares slope's over the stream's own samples within the
-    window (the stream's measured ``rate_hz``; the window counts samples of
-    the trajectory's step ``dt`` [s]): ``sqrt(12 σ² / (h² n (n² − 1)))`` for n
-    samples h apart; without smoothing the backward difference's ``√2 σ / h``.
-    On ``noisy_b`` (1 mm at 120 Hz, 42 ms): 0.039 m/s, where the box at rest
-    read 0.033 m/s per axis.
+    window (as :func:`pose_noise` counts them): ``sqrt(12 σ² / (h² n (n² − 1)))``
+    for n samples h apart; without smoothing the backward difference's
+    ``√2 σ / h``. On ``noisy_b`` (1 mm at 120 Hz, 42 ms): 0.039 m/s, where the
+    box at rest read 0.033 m/s per axis.
     """
-    stream = meta.get("sensors", {}).get("streams", {}).get(role, {})
-    smoothed = meta.get("smoothing", {}).get(role) or {}
-    sigma = float(smoothed.get("position_noise_m", stream.get("position_noise_m", 0.0)) or 0.0)
+    sigma, step, n = _window_samples(meta, role, dt, "position_noise_m", "position_window")
     if sigma <= CLEAN_SIGMA:
         return 0.0
-    rate = float(stream.get("rate_hz", 0.0) or 0.0)
-    step = 1.0 / rate if rate > 0 else dt
-    n = int(smoothed.get("position_window", 1)) * dt / step
     if n < 2:
         return float(np.sqrt(2.0) * sigma / step)
     return float(np.sqrt(12.0 * sigma ** 2 / (step ** 2 * n * (n * n - 1))))
