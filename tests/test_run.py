@@ -22,8 +22,8 @@ from amhe_cli.control.maneuver import ABDUCTION_RANGE, CALF, THIGH, leg_fk3, leg
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.control.planner import PlannerSettings, spline_basis
 from amhe_cli.estimation.sampling import mppi_weights
-from amhe_cli.model.scene import STAND_JOINTS
-from amhe_cli.control.tasks import (BASE_HEIGHT, FOOT_RADIUS, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, Event,
+from amhe_cli.model.scene import FOOT_RADIUS, STAND_JOINTS
+from amhe_cli.control.tasks import (BASE_HEIGHT, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, Event,
                                     get_task)
 
 #: small planner: enough to exercise every code path, cheap enough for a test

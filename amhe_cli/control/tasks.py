@@ -37,6 +37,7 @@ from amhe_cli.errors import AmheError, check_names
 from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, Gait
 from amhe_cli.control.maneuver import HIP_OFFSET
 from amhe_cli.io.quat import quat_to_yaw
+from amhe_cli.model.scene import FOOT_RADIUS
 
 #: Forward reach of the head plate from the trunk origin [m] (the pushing surface).
 HEAD_REACH = 0.28
@@ -76,8 +77,6 @@ REACH_PRESS, REACH_CLEARANCE = 0.02, 0.03
 #: One-leg push: the reach's phases end at these times [s]: to beside the box's face behind its near
 #: end (clear of the box), then along the face to the contact point; the push follows.
 REACH_TIMES = (0.6, 1.2)
-#: Radius of a Go1 foot sphere [m] (models/go1.xml).
-FOOT_RADIUS = 0.023
 
 
 @dataclass
@@ -350,10 +349,13 @@ class Task:
         half_n, half_a = (half_x, half_y) if k % 2 == 0 else (half_y, half_x)
         c, s_ = np.cos(base_yaw), np.sin(base_yaw)
 
-        def trunk(p):  # world (..., 2) -> trunk frame (..., 3), at the reach depth
-            rel = np.asarray(p) - base_xy
-            x, y = c * rel[..., 0] + s_ * rel[..., 1], -s_ * rel[..., 0] + c * rel[..., 1]
-            return np.stack([x, y, np.full_like(x, -REACH_DEPTH)], axis=-1)
+        def turn(v, z):  # a world (..., 2) vector -> the trunk frame (..., 3), with height z
+            v = np.asarray(v)
+            x, y = c * v[..., 0] + s_ * v[..., 1], -s_ * v[..., 0] + c * v[..., 1]
+            return np.stack([x, y, np.full_like(x, z)], axis=-1)
+
+        def trunk(p):  # a world (..., 2) point -> the trunk frame (..., 3), at the reach depth
+            return turn(np.asarray(p) - base_xy, -REACH_DEPTH)
         # the contact: from the face's centre toward its near end, the first point the leg reaches
         offsets = np.linspace(0.0, half_a - REACH_INSET, 25)
         points = box_xy + normal * half_n + along * offsets[:, None]
@@ -371,7 +373,7 @@ class Task:
             return {"foot": a + (b - a) * (t - REACH_TIMES[0]) / span, "velocity": (b - a) / span,
                     "t0": float(t), "phase": "reach"}
         foot = trunk(contact - d * (FOOT_RADIUS - REACH_PRESS))
-        vel = np.array([c * d[0] + s_ * d[1], -s_ * d[0] + c * d[1], 0.0]) * speed
+        vel = turn(d, 0.0) * speed
         return {"foot": foot, "velocity": vel, "t0": float(t), "phase": "push"}
 
     # -- cost ------------------------------------------------------------------
