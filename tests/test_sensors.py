@@ -186,18 +186,25 @@ def test_coverage_counts_intervals_that_hold_the_truth():
         coverage(est, -std, np.array([1.1, 0.5]))
 
 
+def _with_box_noise(tmp_path, sigma: float, seed: int):
+    """The lunge log, and it read back from MCAP with white noise ``sigma`` [m] on the box's positions
+    and without: (trajectory, noisy read, clean read)."""
+    traj = _lunge_log()
+    rng = np.random.default_rng(seed)
+    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, sigma, traj.box_pos.shape), meta={})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the smoothing notice
+        read = read_log(write_mcap(tmp_path / "noisy.mcap", noisy))
+        clean = read_log(write_mcap(tmp_path / "clean.mcap", replace(traj, meta={})))
+    return traj, read, clean
+
+
 def test_mhe_skips_a_box_at_rest_that_only_noise_moves(tmp_path):
     """With 1 mm of pose noise a resting box reads a speed, so its clips pass the MHE's speed test;
     the travel test (the noise's own scale, from the log) drops them and keeps the bumps."""
     from amhe_cli.estimation.clips import box_travel, window_clips
     from amhe_cli.estimation.mhe import MHESettings, rest_travel
-    traj = _lunge_log()
-    rng = np.random.default_rng(1)
-    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, 0.001, traj.box_pos.shape), meta={})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the smoothing notice
-        read = read_log(write_mcap(tmp_path / "noisy.mcap", noisy))
-        clean = read_log(write_mcap(tmp_path / "clean.mcap", replace(traj, meta={})))
+    traj, read, clean = _with_box_noise(tmp_path, 0.001, seed=1)
     assert rest_travel(clean) == 0.0
     travel = rest_travel(read)
     assert 0.001 < travel < 0.01
@@ -220,13 +227,7 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
     resting box's read velocity shows; the MHE's clips grow with it so friction shows through it."""
     from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, noise_clip
     from amhe_cli.io.smoothing import velocity_noise
-    traj = _lunge_log()
-    rng = np.random.default_rng(2)
-    noisy = replace(traj, box_pos=traj.box_pos + rng.normal(0, 0.001, traj.box_pos.shape), meta={})
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # the smoothing notice
-        read = read_log(write_mcap(tmp_path / "noisy.mcap", noisy))
-        clean = read_log(write_mcap(tmp_path / "clean.mcap", replace(traj, meta={})))
+    traj, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
     speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
     rest = slice(50, int(np.argmax(speed > 0.05)) - 50)  # the box at rest before the first bump
     seen = read.box_linvel[rest, :2].std()
