@@ -864,3 +864,27 @@ def test_rows_of_an_older_csv_read_but_are_not_appended_to(tmp_path):
     assert row["setting"] == "" and row["success"] is True and row["seed"] == 0
     with pytest.raises(AmheError, match="--force"):
         RowLog(old)
+
+
+def test_a_ctrl_c_between_the_csv_and_the_json_line_acts_after_both(tmp_path, monkeypatch):
+    """A Ctrl-C landing once a row's CSV line is on disk still lets its JSON line follow, then interrupts."""
+    import os
+    import signal
+
+    from amhe_cli.io.rows import ROW_KEYS, RowLog, read_rows
+    log = RowLog(tmp_path / "grid.csv", tmp_path / "grid.jsonl")
+    flush = RowLog._flush
+    sent = []
+
+    def flush_then_ctrl_c(fh):
+        flush(fh)
+        if not sent:  # right after the CSV line
+            sent.append(fh.name)
+            os.kill(os.getpid(), signal.SIGINT)
+    monkeypatch.setattr(log, "_flush", flush_then_ctrl_c)
+    with pytest.raises(KeyboardInterrupt):
+        log.write({**{k: 0 for k in ROW_KEYS}, "task": "t1", "mode": "true"})
+    log.close()
+    assert sent == [str(tmp_path / "grid.csv")]
+    assert len(read_rows(tmp_path / "grid.csv")) == len((tmp_path / "grid.jsonl").read_text().splitlines()) == 1
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is back

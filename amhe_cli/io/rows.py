@@ -12,6 +12,8 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
+import threading
 from pathlib import Path
 
 from amhe_cli.errors import AmheError
@@ -87,12 +89,30 @@ class RowLog:
         os.fsync(fh.fileno())
 
     def write(self, row: dict) -> None:
-        """Append one run's row (keys :data:`ROW_KEYS`, more allowed in the JSON line) and flush it."""
-        self._writer.writerow([row.get(k, "") for k in ROW_KEYS])
-        self._flush(self._csv)
-        if self._jsonl is not None:
-            self._jsonl.write(json.dumps(row, default=float) + "\n")
-            self._flush(self._jsonl)
+        """Append one run's row (keys :data:`ROW_KEYS`, more allowed in the JSON line) and flush it.
+
+        A Ctrl-C (SIGINT) arriving while the row goes to the files is held and
+        acted on right after, so a cut-off grid never has a row in the CSV (what
+        ``--resume`` reads) that its JSON lines lack.
+        """
+        held: list = []
+        previous = None
+        if threading.current_thread() is threading.main_thread():  # Python runs handlers there only
+            previous = signal.signal(signal.SIGINT, lambda *args: held.append(args))
+        try:
+            self._writer.writerow([row.get(k, "") for k in ROW_KEYS])
+            self._flush(self._csv)
+            if self._jsonl is not None:
+                self._jsonl.write(json.dumps(row, default=float) + "\n")
+                self._flush(self._jsonl)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+                if held:
+                    if callable(previous):
+                        previous(*held[0])
+                    else:
+                        raise KeyboardInterrupt
 
     def close(self) -> None:
         self._csv.close()
