@@ -79,7 +79,10 @@ class IdentifySettings:
             11.6 %, μ 0.040 against 0.050; mismatched robot: median 4.9 %
             against 6.2 %), 2σ coverage 95.5 % against 94.5 %, in 0.85 of the
             time (2 cores, ``amhe identify`` on a 20 s log: 31.9 s against
-            37.5 s, medians of 3 in one session). What did not hold: popsize 10
+            37.5 s, medians of 3 in one session; 27.7 s against 32.7 s on a
+            quieter day). Of the 27.7 s, 24 s are rollouts at raw
+            ``mujoco.rollout`` speed, 2.5 s reading the log and 1.3 s imports.
+            What did not hold: popsize 10
             (worst mass 18.5 %, coverage 87 %), and the first 8 generations on
             every other clip (0.67 of the time; noisy log worst 12.6 %, μ
             0.053): on these rough costs the seed-to-seed spread is CMA-ES's

@@ -86,7 +86,9 @@ def noise_clip(traj: Trajectory) -> float:
     (``benchmarks/mhe_accuracy.py --sliding``, 8 seeds, worst friction error
     from 3 s after the box first slid): fixed 0.1 s clips 0.23, 0.2 s 0.15,
     0.3 s 0.096, 0.4 s 0.19; this rule 0.052–0.105 per seed (median 0.068)
-    at 150, 300 or 600 steps, the clean mass-switch log unchanged.
+    at 150, 300 or 600 steps, the clean mass-switch log unchanged. Longer
+    windows with these clips did worse (worst 0.33 with a 2 s window and 600
+    steps, 0.24 with 3 s and 900), and 3 s lost the mass switch in every seed.
     """
     sigma_v = velocity_noise(traj.meta, "box", traj.dt)
     return 2.0 * CLIP_SIGMAS * sigma_v / (CLIP_MU * GRAVITY)
