@@ -374,6 +374,20 @@ def test_sample_clips_deterministic_and_prefers_moving_box(traj, scene):
         assert np.mean(moves) >= 0.75  # ... yet most clips see it move
 
 
+def test_sample_clips_warn_where_the_box_rests(traj, scene):
+    """Too few starts with the box moving: clips come from where it rests, and a warning says the
+    estimate will stay near the prior; a log with enough motion draws without one."""
+    speed = _box_speed(traj)
+    rest_end = traj.t[int(np.flatnonzero(speed > 0.02)[0])] - 0.3  # up to just before the first push
+    with pytest.warns(UserWarning, match=r"at only 0 clip starts.*stays near the prior"):
+        c = sample_clips(traj, scene, 8, rng=np.random.default_rng(0), t_range=(0.0, rest_end))
+    assert len(c) == 8 and all(speed[s:s + h + 1].max() <= 0.02 for s, h in zip(c.start, c.horizon))
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sample_clips(traj, scene, 8, rng=np.random.default_rng(0))
+
+
 def test_sample_clips_avoid_gaps(traj, scene):
     t = _independent_masks(traj)
     moving = np.flatnonzero(_box_speed(t) > 0.02)

@@ -14,6 +14,7 @@ the mass shows only during robot–box bumps, free sliding pins down μ).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,6 +131,9 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     :func:`excitation`, among starts whose whole clip is observed and, if
     given, inside ``t_range = (t0, t1)`` [s]. Where the box moves faster than
     ``min_speed`` [m/s] somewhere in the clip only those starts are used.
+    Where fewer than ``n_clips`` such starts exist, the clips are drawn from
+    all observed starts and a warning says so: clips of a box at rest tell
+    nothing of its mass or friction, so the estimate stays near the prior.
 
     Raises:
         AmheError: no observed stretch is long enough for one clip.
@@ -154,6 +158,12 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
                         "expected at least one clip's worth of continuous data")
     score = excitation(traj, hi)
     active = usable & (score > min_speed)
+    if active.sum() < n_clips:
+        where = "in the log" if t_range is None else f"in {t_range[0]:g}-{t_range[1]:g} s of the log"
+        warnings.warn(f"the box moves faster than {min_speed:g} m/s {where} at only {int(active.sum())} clip "
+                      f"starts, fewer than the {n_clips} clips asked for: clips of a box at rest tell nothing of "
+                      "its mass or friction, so the estimate stays near the prior (give a log, or --t-range, "
+                      "where the robot pushes the box)", stacklevel=2)
     pool = np.flatnonzero(active if active.sum() >= n_clips else usable)
     weight = score[pool] + 1e-3
     k = min(n_clips, pool.size)
