@@ -647,6 +647,52 @@ _UNITREE_MSGS = {
 }
 
 
+def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool) -> Path:
+    """``traj`` with its base and box poses only on ``/tf`` (with a leg frame beside them, as a
+    robot_state_publisher records) and a sensor frame on ``/tf_static``; joints as usual."""
+    from rosbags.typesys import get_types_from_msg
+    extra = get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage") if ros1 else None
+    bag = BagWriter(path, ros1=ros1, extra_types=extra)  # ROS 1's type store here has no tf2_msgs
+    TS, Tf = bag.T("geometry_msgs/msg/TransformStamped"), bag.T("geometry_msgs/msg/Transform")
+    V, Q, TF = bag.T("geometry_msgs/msg/Vector3"), bag.T("geometry_msgs/msg/Quaternion"), "tf2_msgs/msg/TFMessage"
+
+    def transform(ns, parent, child, pos, q_wxyz):
+        x, y, z, w = mj_to_ros(q_wxyz)
+        return TS(header=bag.header(ns, parent), child_frame_id=child,
+                  transform=Tf(translation=V(*pos), rotation=Q(x=x, y=y, z=z, w=w)))
+    bag.write("/tf_static", TF, 0, bag.T(TF)(transforms=[transform(0, "base_link", "imu", [0, 0, 0.05], [1, 0, 0, 0])]))
+    for i in range(len(traj)):
+        ns = int(round(traj.t[i] * 1e9))
+        bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
+                  bag.joint_state(ns, GO1_JOINTS, traj.joint_pos[i], traj.joint_vel[i]))
+        if i % 5 == 0:
+            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns, bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
+        bag.write("/tf", TF, ns, bag.T(TF)(transforms=[
+            transform(ns, "world", "base_link", traj.base_pos[i], traj.base_quat[i]),
+            transform(ns, "base_link", "FR_thigh", [0.19, -0.13, 0.0], [1, 0, 0, 0]),
+            transform(ns, "world", "/box", traj.box_pos[i], traj.box_quat[i]),
+        ]))
+    bag.close()
+    return path
+
+
+@pytest.mark.parametrize("ros1", [False, True])
+def test_poses_on_tf_are_read_per_frame(tmp_path, ros1):
+    """Base and box recorded only as transforms on /tf: each child frame reads as a pose topic of its
+    own (``/tf#base_link``, ``/tf#box``), assigned by its name, with the poses as written; the
+    static frame and the leg frame play no role."""
+    traj = make_traj()
+    path = _write_tf_bag(tmp_path / ("tf.bag" if ros1 else "tf"), traj, ros1)
+    got = read_log(path)
+    assert got.meta["topics"]["base"] == "/tf#base_link" and got.meta["topics"]["box"] == "/tf#box"
+    assert_close(traj, got, signals=("joint_pos", "base_pos", "base_quat", "box_pos", "box_quat", "ctrl"))
+    info = inspect_log(path)
+    assert {t.topic for t in info.topics} >= {"/tf#base_link", "/tf#box", "/tf#FR_thigh", "/tf_static"}
+    assert "/tf" not in {t.topic for t in info.topics}
+    explicit = read_log(path, topics={"base": "/tf#FR_thigh"})  # a frame named by hand wins
+    np.testing.assert_allclose(explicit.base_pos[:, 0], 0.19)
+
+
 def test_ros1_bag_with_unitree_lowstate_lowcmd(tmp_path):
     from rosbags.typesys import get_types_from_msg
 

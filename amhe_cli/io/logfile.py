@@ -3,7 +3,8 @@
 The log is opened with ``rosbags.highlevel.AnyReader`` (bare ``.mcap``,
 rosbag2 folders with sqlite3 or mcap storage, ROS 1 ``.bag``); a truncated
 MCAP (no footer/summary) falls back to the ``mcap`` stream reader and keeps
-whatever complete records precede the cut. MCAP metadata records are read
+whatever complete records precede the cut. Transform topics (``/tf``) come
+out split into one pose topic per frame (:mod:`~amhe_cli.io.tf`). MCAP metadata records are read
 alongside, and :func:`_sha256` fingerprints the log for the trajectory's meta.
 """
 
@@ -17,6 +18,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from amhe_cli.errors import AmheError
+from amhe_cli.io.tf import split_tf
 
 _NOT_A_LOG = "expected an MCAP file, a rosbag2 folder or a ROS 1 .bag"
 
@@ -96,7 +98,7 @@ def _open_log(path: str | Path) -> Iterator[_OpenLog]:
         reader.open()
     except Exception as err:  # rosbags raises several unrelated types here
         if fmt == "mcap":
-            yield _open_mcap_stream(path, reason=_one_line(err).rstrip("."))
+            yield split_tf(_open_mcap_stream(path, reason=_one_line(err).rstrip(".")))
             return
         raise AmheError(f"cannot read '{path}' as a {_FORMAT_NAMES[fmt]}: {_one_line(err)}") from None
     try:
@@ -136,7 +138,7 @@ def _open_log(path: str | Path) -> Iterator[_OpenLog]:
                     ) from None
                 yield conn.topic, timestamp, msg
 
-        yield _OpenLog(path, fmt, topics, counts, metadata, warns, iterate)
+        yield split_tf(_OpenLog(path, fmt, topics, counts, metadata, warns, iterate))
     finally:
         reader.close()
 
