@@ -647,7 +647,7 @@ _UNITREE_MSGS = {
 }
 
 
-def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool) -> Path:
+def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool, base_parent: str = "world") -> Path:
     """``traj`` with its base and box poses only on ``/tf`` (with a leg frame beside them, as a
     robot_state_publisher records) and a sensor frame on ``/tf_static``; joints as usual."""
     from rosbags.typesys import get_types_from_msg
@@ -668,7 +668,7 @@ def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool) -> Path:
         if i % 5 == 0:
             bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns, bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
         bag.write("/tf", TF, ns, bag.T(TF)(transforms=[
-            transform(ns, "world", "base_link", traj.base_pos[i], traj.base_quat[i]),
+            transform(ns, base_parent, "base_link", traj.base_pos[i], traj.base_quat[i]),
             transform(ns, "base_link", "FR_thigh", [0.19, -0.13, 0.0], [1, 0, 0, 0]),
             transform(ns, "world", "/box", traj.box_pos[i], traj.box_quat[i]),
         ]))
@@ -689,8 +689,18 @@ def test_poses_on_tf_are_read_per_frame(tmp_path, ros1):
     info = inspect_log(path)
     assert {t.topic for t in info.topics} >= {"/tf#base_link", "/tf#box", "/tf#FR_thigh", "/tf_static"}
     assert "/tf" not in {t.topic for t in info.topics}
-    explicit = read_log(path, topics={"base": "/tf#FR_thigh"})  # a frame named by hand wins
+    assert not [w for w in got.meta["warnings"] if "frame" in w]
+    with pytest.warns(UserWarning, match="frame base_link"):  # its parent is base_link, the box's is world
+        explicit = read_log(path, topics={"base": "/tf#FR_thigh"})  # a frame named by hand wins
     np.testing.assert_allclose(explicit.base_pos[:, 0], 0.19)
+
+
+def test_base_and_box_in_different_frames_warn(tmp_path):
+    """A base pose from the robot's odometry frame beside a box pose from the motion capture's world:
+    amhe takes both in one frame, and says so."""
+    path = _write_tf_bag(tmp_path / "odom", make_traj(), False, base_parent="/odom")
+    with pytest.warns(UserWarning, match=r"base pose is given in frame odom and the box pose in world"):
+        read_log(path)
 
 
 def test_ros1_bag_with_unitree_lowstate_lowcmd(tmp_path):

@@ -166,6 +166,11 @@ def read_log(
                 f"topic '{series[role].topic}' for role '{role}' has {len(series[role].t_ns)} usable "
                 f"message(s): expected at least 2"
             )
+    frames = {r: series[r].frames for r in ("base", "box")}
+    if all(frames.values()) and set(frames["base"]) != set(frames["box"]):
+        warns.append(f"the base pose is given in frame {'/'.join(frames['base'])} and the box pose in "
+                     f"{'/'.join(frames['box'])}: amhe takes both in one world frame, so robot-box contact is "
+                     "only right where these frames coincide (e.g. both from the motion capture)")
     meta["sensors"] = {"streams": {r: stream_report(series[r]) for r in REQUIRED_ROLES}}
     if time_offset:
         for role, shift in time_offset.items():

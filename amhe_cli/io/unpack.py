@@ -42,6 +42,8 @@ class _Series:
     fields: dict[str, np.ndarray]
     #: median (log time − header stamp) [ns]: the transport latency, None without header stamps
     latency_ns: float | None = None
+    #: the header frames the poses are given in (``frame_id``, leading ``/`` dropped; none for joints)
+    frames: tuple = ()
 
     def period_ns(self) -> float:
         """Median spacing of the messages [ns]."""
@@ -118,6 +120,7 @@ class _Unpacker:
         self.names: list[str] | None = None
         self._index_cache: dict[tuple[str, ...], np.ndarray] = {}
         self._no_names = 0
+        self.frames: set[str] = set()
 
     def _put(self, key: str, row) -> None:
         self.rows.setdefault(key, []).append(row)
@@ -169,6 +172,7 @@ class _Unpacker:
         else:
             for key, row in _unpack_pose(kind, msg).items():
                 self._put(key, row)
+            self.frames.add(str(getattr(getattr(msg, "header", None), "frame_id", "")).lstrip("/"))
 
     def finish(self) -> _Series:
         """Validate, drop bad rows, sort by time and convert to MuJoCo conventions.
@@ -234,7 +238,7 @@ class _Unpacker:
             self.warns.append(f"{int((~last).sum())} messages on '{self.topic}' repeat a time stamp; kept the last")
             t = t[last]
             arrays = {k: v[last] for k, v in arrays.items()}
-        return _Series(self.topic, self.full_type, t, self._convert(arrays), latency)
+        return _Series(self.topic, self.full_type, t, self._convert(arrays), latency, tuple(sorted(self.frames - {""})))
 
     def _convert(self, a: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Rename fields to role-independent names in MuJoCo conventions."""
