@@ -695,6 +695,30 @@ def test_poses_on_tf_are_read_per_frame(tmp_path, ros1):
     np.testing.assert_allclose(explicit.base_pos[:, 0], 0.19)
 
 
+def test_a_stream_stamped_on_another_clock_is_moved_onto_the_logs(tmp_path):
+    """Odometry stamped with the robot's time since boot (here 1000 s behind the recorder's clock) beside
+    motion capture and joints stamped on the recorder's: read on one clock, as if stamped there."""
+    traj = make_traj()
+    path = tmp_path / "clocks"
+    bag = BagWriter(path)
+    lin_body = world_to_body(traj.base_quat, traj.base_linvel)
+    boot = -10**12
+    for i in range(len(traj)):
+        ns = int(round(traj.t[i] * 1e9)) + 2 * 10**12
+        bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
+                  bag.joint_state(ns, GO1_JOINTS, traj.joint_pos[i], traj.joint_vel[i]))
+        bag.write("/odom", "nav_msgs/msg/Odometry", ns,
+                  bag.odometry(ns + boot, traj.base_pos[i], traj.base_quat[i], lin_body[i], traj.base_angvel[i]))
+        bag.write("/mocap/box/pose", "geometry_msgs/msg/PoseStamped", ns,
+                  bag.pose_stamped(ns, traj.box_pos[i], traj.box_quat[i]))
+        if i % 5 == 0:
+            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns, bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
+    bag.close()
+    with pytest.warns(UserWarning, match=r"stamps on '/odom' are \+1000 s off"):
+        got = read_log(path)
+    assert_close(traj, got)
+
+
 def test_base_and_box_in_different_frames_warn(tmp_path):
     """A base pose from the robot's odometry frame beside a box pose from the motion capture's world:
     amhe takes both in one frame, and says so."""

@@ -166,6 +166,7 @@ def read_log(
                 f"topic '{series[role].topic}' for role '{role}' has {len(series[role].t_ns)} usable "
                 f"message(s): expected at least 2"
             )
+    _one_clock(series, warns)
     frames = {r: series[r].frames for r in ("base", "box")}
     if all(frames.values()) and set(frames["base"]) != set(frames["box"]):
         warns.append(f"the base pose is given in frame {'/'.join(frames['base'])} and the box pose in "
@@ -186,6 +187,32 @@ def read_log(
     for text in warns:
         warnings.warn(text, stacklevel=2)
     return traj
+
+
+#: Header stamps this far [s] from their messages' log times, where the streams disagree by as much,
+#: are on another clock (a robot's boot time beside the recorder's wall clock).
+FOREIGN_CLOCK_S = 1.0
+
+
+def _one_clock(series: dict, warns: list[str]) -> None:
+    """Put every role's times on one clock, in place.
+
+    Header stamps are the measurement times, but a stream may stamp with its
+    own clock (the robot's time since boot beside the motion capture's wall
+    clock). Where the roles' latencies (median log time − stamp) differ by
+    more than :data:`FOREIGN_CLOCK_S`, each stream whose latency exceeds it
+    is moved onto the log's clock by its median latency (its spacing kept),
+    with a warning.
+    """
+    lat = {r: s.latency_ns or 0.0 for r, s in series.items() if r in REQUIRED_ROLES}
+    if max(lat.values()) - min(lat.values()) <= FOREIGN_CLOCK_S * 1e9:
+        return
+    for role, latency in lat.items():
+        if abs(latency) > FOREIGN_CLOCK_S * 1e9:
+            s = series[role]
+            s.t_ns, s.latency_ns = s.t_ns + int(round(latency)), None  # now on log times: no latency of its own
+            warns.append(f"the header stamps on '{s.topic}' are {latency * 1e-9:+.6g} s off their log times, on "
+                         "another clock than the other streams: moved onto the log's clock by that offset")
 
 
 # --------------------------------------------------------------------------- #
