@@ -353,6 +353,12 @@ def test_canonical_joint_names_and_aliases():
     assert canonical_joint_name("RH_KFE") == "RR_calf_joint"
     assert canonical_joint_name("go1/RL_thigh_joint") == "RL_thigh_joint"
     assert canonical_joint_name("arm_joint_1") is None
+    # legs spelled out, and unitree_legged_sdk's motor names FR_0/1/2 (hip, thigh, calf)
+    assert canonical_joint_name("front_right_hip_joint") == "FR_hip_joint"
+    assert canonical_joint_name("hind_left_knee") == "RL_calf_joint"
+    assert [canonical_joint_name(f"RR_{k}") for k in range(3)] == ["RR_hip_joint", "RR_thigh_joint", "RR_calf_joint"]
+    assert canonical_joint_name("go1/FL_1") == "FL_thigh_joint"
+    assert canonical_joint_name("front_hip") is None and canonical_joint_name("imu_0") is None
 
 
 def test_match_joints_errors_and_explicit_map():

@@ -20,21 +20,35 @@ _PART_ALIASES = {
     "thigh": "thigh", "hfe": "thigh", "upper": "thigh",
     "calf": "calf", "kfe": "calf", "knee": "calf", "shank": "calf", "lower": "calf",
 }
+#: Legs spelled out (``front_right_hip``): (fore/hind word, side word) -> leg.
+_SPELLED_LEGS = {("front", "right"): "FR", ("front", "left"): "FL", ("rear", "right"): "RR", ("rear", "left"): "RL"}
+_FORE_HIND = {"front": "front", "fore": "front", "rear": "rear", "hind": "rear", "back": "rear"}
+#: unitree_legged_sdk's motor names ``FR_0``, ``FR_1``, ``FR_2``: hip, thigh, calf.
+_SDK_PARTS = {"0": "hip", "1": "thigh", "2": "calf"}
 
 
 def canonical_joint_name(name: str) -> str | None:
     """Go1 joint name (:data:`GO1_JOINTS`) for a joint name used by some stack.
 
     Case-insensitive; accepts ``FR_hip_joint``, ``FR_hip``, ``fr_hip_joint``,
-    prefixes such as ``go1/FR_hip_joint`` and ANYmal-style ``RF_HAA``/``LH_KFE``
-    (LF=FL, RF=FR, LH=RL, RH=RR; HAA=hip, HFE=thigh, KFE=calf).
+    prefixes such as ``go1/FR_hip_joint``, ANYmal-style ``RF_HAA``/``LH_KFE``
+    (LF=FL, RF=FR, LH=RL, RH=RR; HAA=hip, HFE=thigh, KFE=calf), legs spelled
+    out (``front_right_hip``, ``hind_left_knee``) and unitree_legged_sdk's
+    motor names ``FR_0``/``FR_1``/``FR_2`` (hip, thigh, calf).
 
     Returns:
         The canonical name, or None when the name is not recognised.
     """
     tokens = [t for t in re.split(r"[^a-z0-9]+", name.lower()) if t and t != "joint"]
     legs = {_LEG_ALIASES[t] for t in tokens if t in _LEG_ALIASES}
+    if not legs:
+        fore = {_FORE_HIND[t] for t in tokens if t in _FORE_HIND}
+        side = {t for t in tokens if t in ("left", "right")}
+        if len(fore) == 1 and len(side) == 1:
+            legs = {_SPELLED_LEGS[(fore.pop(), side.pop())]}
     parts = {_PART_ALIASES[t] for t in tokens if t in _PART_ALIASES}
+    if not parts and len(legs) == 1:
+        parts = {_SDK_PARTS[t] for t in tokens if t in _SDK_PARTS}
     if len(legs) != 1 or len(parts) != 1:
         return None
     return f"{legs.pop()}_{parts.pop()}_joint"
