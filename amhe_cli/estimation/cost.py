@@ -84,8 +84,8 @@ class StateWeights:
         half the window times the deceleration. Measured on ``noisy_b`` (8 seeds):
         with those velocities in ``W_x`` and a 78 ms window the mass read
         +5.2 ± 5.4 % and μ up to 0.052 low; without them, and with the 42 ms
-        window of :data:`~amhe_cli.io.smoothing.TARGET_VEL_SIGMA` = 0.05 m/s,
-        −0.9 ± 5.7 % and μ within 0.05.
+        window of :data:`~amhe_cli.io.smoothing.TARGET_VEL_SIGMA` = 0.05 m/s
+        (the target then; 0.03 now, see there), −0.9 ± 5.7 % and μ within 0.05.
         On a clean simulated log every term is ≪ the default and ``W_x`` is the
         default. ``overrides`` (group -> σ, e.g. ``--sigma``) win.
 

@@ -57,7 +57,7 @@ def rest_travel(traj: Trajectory) -> float:
     :data:`REST_SIGMAS` × √2 × the pose noise as read
     (:func:`~amhe_cli.io.smoothing.pose_noise`; position and :data:`LEVER` ×
     orientation): the difference of two noisy poses. On ``noisy_b`` (1 mm /
-    0.2° at 120 Hz, smoothed over 42 ms) it is 4.9 mm, and without it windows
+    0.2° at 120 Hz, smoothed over 58 ms) it is 4.3 mm, and without it windows
     of the box at rest from 1 s on counted as informative: the MHE fitted the
     noise, and its friction fell to 0.36 where the truth is 0.55 before the
     robot had touched the box.
@@ -82,13 +82,17 @@ def noise_clip(traj: Trajectory) -> float:
     seconds that moves the box by σ_v·T, while a friction off by Δμ moves it
     by ½·Δμ·g·T². Friction shows at :data:`CLIP_MU` once
     ``½ Δμ g T² ≥ CLIP_SIGMAS · σ_v T``, i.e. ``T = 2 · CLIP_SIGMAS · σ_v / (Δμ g)``:
-    0.31 s on ``noisy_b`` (σ_v 0.039 m/s). *Measured* there
-    (``benchmarks/mhe_accuracy.py --sliding``, 8 seeds, worst friction error
-    from 3 s after the box first slid): fixed 0.1 s clips 0.23, 0.2 s 0.15,
-    0.3 s 0.096, 0.4 s 0.19; this rule 0.052–0.105 per seed (median 0.068)
-    at 150, 300 or 600 steps, the clean mass-switch log unchanged. Longer
-    windows with these clips did worse (worst 0.33 with a 2 s window and 600
-    steps, 0.24 with 3 s and 900), and 3 s lost the mass switch in every seed.
+    0.19 s on ``noisy_b`` (σ_v 0.024 m/s through its 58 ms smoothing window).
+    *Measured* there (``benchmarks/mhe_accuracy.py --sliding``, 8 seeds, worst
+    friction error from 3 s after the box first slid), with the 42 ms window
+    of the earlier smoothing target (σ_v 0.039 m/s): fixed 0.1 s clips 0.23,
+    0.2 s 0.15, 0.3 s 0.096, 0.4 s 0.19; this rule (then 0.31 s) 0.052–0.105
+    per seed (median 0.068) at 150, 300 or 600 steps, the clean mass-switch
+    log unchanged; longer windows did worse (worst 0.33 with a 2 s window and
+    600 steps, 0.24 with 3 s and 900; 3 s lost the mass switch in every seed).
+    With the 58 ms window (:data:`~amhe_cli.io.smoothing.TARGET_VEL_SIGMA`
+    0.03, chosen for ``identify`` at other sampling rates): 0.064–0.146 per
+    seed at 150 steps, 0.055–0.107 at 300.
     """
     sigma_v = velocity_noise(traj.meta, "box", traj.dt)
     return 2.0 * CLIP_SIGMAS * sigma_v / (CLIP_MU * GRAVITY)

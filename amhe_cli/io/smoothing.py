@@ -30,11 +30,20 @@ from scipy.stats import median_abs_deviation
 CLEAN_SIGMA = 2e-5
 CLEAN_SIGMA_ROT = 1e-4
 #: Velocity noise the smoothing window aims for [m/s or rad/s].
-TARGET_VEL_SIGMA = 0.05
-"""0.05 m/s, not 0.02: on 1 mm / 120 Hz motion capture that is a 42 ms window instead of 78 ms. The
-velocity is then noisier but lags less at impacts and stops, and ``identify`` gets its clips' initial
-velocities from it: on ``noisy_b`` (8 seeds) the mass read +2.9 ± 5.7 % with the long window and
-−0.9 ± 5.7 % with the short one (docs in :meth:`~amhe_cli.estimation.cost.StateWeights.for_log`)."""
+TARGET_VEL_SIGMA = 0.03
+"""0.03 m/s: ``identify`` starts its clips from these velocities, and their noise biases the m·μ split
+(errors in variables), while a longer window lags at impacts. On 1 mm motion capture this is a 58 ms
+window at 120 Hz and 30 ms at 500 Hz. *Measured* (``benchmarks/identify_accuracy.py``, 8 seeds per
+log, one 64-core run), mass error mean ± std (worst) at targets 0.05 / 0.03 / 0.02 m/s:
+
+- ``noisy_b`` (120 Hz): −0.9 ± 5.3 (+9.3) / +3.1 ± 6.5 (+14.3) / +3.3 ± 5.5 (+13.5) %;
+- ``mismatch_b`` with 1 mm noise and 2 % drops added at 500 Hz: −26.8 ± 11.2 (−45.9, μ off by
+  0.26) / −5.7 ± 4.2 (−15.0) / +8.8 ± 8.3 (+16.3) %;
+- ``const_a`` with the same noise: +1.2 ± 8.8 (−13.3, μ 0.11) / +2.7 ± 5.2 (+10.8) / +4.4 ± 2.8 (+9.5) %;
+- 2σ coverage over the three: 80.8 / 95.0 / 92.5 %.
+
+0.05 suited 120 Hz but gave 22 ms windows at 500 Hz, where the bias took the mass a quarter low;
+0.03 is the target that holds at both rates."""
 MAX_WINDOW = 61
 
 
@@ -136,8 +145,9 @@ def velocity_noise(meta: dict, role: str, dt: float) -> float:
     noise is a least-squares slope's over the stream's own samples within the
     window (as :func:`pose_noise` counts them): ``sqrt(12 σ² / (h² n (n² − 1)))``
     for n samples h apart; without smoothing the backward difference's
-    ``√2 σ / h``. On ``noisy_b`` (1 mm at 120 Hz, 42 ms): 0.039 m/s, where the
-    box at rest read 0.033 m/s per axis.
+    ``√2 σ / h``. On ``noisy_b`` (1 mm at 120 Hz) smoothed over 42 ms: 0.039
+    m/s, where the box at rest read 0.033 m/s per axis (58 ms, the default
+    now: 0.024 m/s).
     """
     sigma, step, n = _window_samples(meta, role, dt, "position_noise_m", "position_window")
     if sigma <= CLEAN_SIGMA:
