@@ -657,7 +657,8 @@ def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool, base_parent: str = "
     """``traj`` with its base and box poses only on ``/tf`` (with a leg frame beside them, as a
     robot_state_publisher records) and a sensor frame on ``/tf_static``; joints as usual."""
     from rosbags.typesys import get_types_from_msg
-    extra = get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage") if ros1 else None
+    extra = (get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
+             if ros1 else None)
     bag = BagWriter(path, ros1=ros1, extra_types=extra)  # ROS 1's type store here has no tf2_msgs
     TS, Tf = bag.T("geometry_msgs/msg/TransformStamped"), bag.T("geometry_msgs/msg/Transform")
     V, Q, TF = bag.T("geometry_msgs/msg/Vector3"), bag.T("geometry_msgs/msg/Quaternion"), "tf2_msgs/msg/TFMessage"
@@ -672,7 +673,8 @@ def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool, base_parent: str = "
         bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
                   bag.joint_state(ns, GO1_JOINTS, traj.joint_pos[i], traj.joint_vel[i]))
         if i % 5 == 0:
-            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns, bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
+            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns,
+                      bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
         bag.write("/tf", TF, ns, bag.T(TF)(transforms=[
             transform(ns, base_parent, "base_link", traj.base_pos[i], traj.base_quat[i]),
             transform(ns, "base_link", "FR_thigh", [0.19, -0.13, 0.0], [1, 0, 0, 0]),
@@ -718,7 +720,8 @@ def test_a_stream_stamped_on_another_clock_is_moved_onto_the_logs(tmp_path):
         bag.write("/mocap/box/pose", "geometry_msgs/msg/PoseStamped", ns,
                   bag.pose_stamped(ns, traj.box_pos[i], traj.box_quat[i]))
         if i % 5 == 0:
-            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns, bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
+            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns,
+                      bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
     bag.close()
     with pytest.warns(UserWarning, match=r"stamps on '/odom' are \+1000 s off"):
         got = read_log(path)

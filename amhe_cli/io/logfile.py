@@ -4,8 +4,9 @@ The log is opened with ``rosbags.highlevel.AnyReader`` (bare ``.mcap``,
 rosbag2 folders with sqlite3 or mcap storage, ROS 1 ``.bag``); a truncated
 MCAP (no footer/summary) falls back to the ``mcap`` stream reader and keeps
 whatever complete records precede the cut. Transform topics (``/tf``) come
-out split into one pose topic per frame (:mod:`~amhe_cli.io.tf`). MCAP metadata records are read
-alongside, and :func:`_sha256` fingerprints the log for the trajectory's meta.
+out split into one pose topic per frame (:mod:`~amhe_cli.io.tf`). MCAP
+metadata records are read alongside, and :func:`_sha256` fingerprints the log
+for the trajectory's meta.
 """
 
 from __future__ import annotations
