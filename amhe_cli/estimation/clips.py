@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from amhe_cli.errors import AmheError
+from amhe_cli.io.quat import quat_relative_rotvec
 from amhe_cli.model.scene import Scene
 from amhe_cli.io.trajectory import Trajectory
 
@@ -177,8 +178,7 @@ def box_travel(traj: Trajectory, starts: np.ndarray, horizons: np.ndarray) -> np
     :data:`LEVER` × the angle it turned, from sample ``starts`` to ``starts + horizons``."""
     a, b = np.asarray(starts), np.asarray(starts) + np.asarray(horizons)
     shift = np.linalg.norm(traj.box_pos[b, :2] - traj.box_pos[a, :2], axis=1)
-    dot = np.clip(np.abs(np.sum(traj.box_quat[a] * traj.box_quat[b], axis=1)), 0.0, 1.0)
-    return shift + LEVER * 2.0 * np.arccos(dot)
+    return shift + LEVER * np.linalg.norm(quat_relative_rotvec(traj.box_quat[a], traj.box_quat[b]), axis=1)
 
 
 def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_steps: int | None,
