@@ -174,6 +174,8 @@ def write_bag(
     cmd_every: int = 5,
     offset_ns: int = 0,
     dup_box: str | None = None,
+    stamp_shift: dict | None = None,
+    each=None,
     **bag_kw,
 ) -> Path:
     """Write ``traj`` as a rosbag2 sqlite3 folder with rosbags' writer.
@@ -188,6 +190,8 @@ def write_bag(
         cmd_every: commands written every ``cmd_every`` samples (their change points).
         offset_ns: added to every time stamp.
         dup_box: name of a second topic carrying the box pose shifted by 1 m in x.
+        stamp_shift: role -> ns added to its header stamps only (a stream stamped on another clock).
+        each: called as ``each(bag, i, ns)`` after sample ``i``'s messages, to write more.
         bag_kw: passed to :class:`BagWriter` (``storage``, ``log_delay_ns``).
     """
     topics = {"joint_states": "/joint_states", "base": "/odom", "box": "/mocap/box/pose",
@@ -196,6 +200,7 @@ def write_bag(
     bag = BagWriter(path, **bag_kw)
     lin_body = world_to_body(traj.base_quat, traj.base_linvel)
     msg_names = [names[k] for k in order]
+    shift = stamp_shift or {}
     for i in range(len(traj)):
         ns = int(round(traj.t[i] * 1e9)) + offset_ns
         if "joint_states" not in skip:
@@ -203,7 +208,8 @@ def write_bag(
                       bag.joint_state(ns, msg_names, traj.joint_pos[i, order], traj.joint_vel[i, order]))
         if "base" not in skip:
             bag.write(topics["base"], "nav_msgs/msg/Odometry", ns,
-                      bag.odometry(ns, traj.base_pos[i], traj.base_quat[i], lin_body[i], traj.base_angvel[i]))
+                      bag.odometry(ns + shift.get("base", 0), traj.base_pos[i], traj.base_quat[i], lin_body[i],
+                                   traj.base_angvel[i]))
         if "box" not in skip and i not in box_drop:
             pos = np.full(3, np.nan) if i in box_nan else traj.box_pos[i]
             bag.write(topics["box"], "geometry_msgs/msg/PoseStamped", ns, bag.pose_stamped(ns, pos, traj.box_quat[i]))
@@ -213,6 +219,8 @@ def write_bag(
         if "joint_commands" not in skip and i % cmd_every == 0:
             bag.write(topics["joint_commands"], "sensor_msgs/msg/JointState", ns,
                       bag.joint_state(ns, msg_names, traj.ctrl[i, order]))
+        if each is not None:
+            each(bag, i, ns)
     bag.close()
     return path
 
@@ -657,31 +665,28 @@ def _write_tf_bag(path: Path, traj: Trajectory, ros1: bool, base_parent: str = "
     """``traj`` with its base and box poses only on ``/tf`` (with a leg frame beside them, as a
     robot_state_publisher records) and a sensor frame on ``/tf_static``; joints as usual."""
     from rosbags.typesys import get_types_from_msg
-    extra = (get_types_from_msg("geometry_msgs/TransformStamped[] transforms", "tf2_msgs/msg/TFMessage")
-             if ros1 else None)
-    bag = BagWriter(path, ros1=ros1, extra_types=extra)  # ROS 1's type store here has no tf2_msgs
-    TS, Tf = bag.T("geometry_msgs/msg/TransformStamped"), bag.T("geometry_msgs/msg/Transform")
-    V, Q, TF = bag.T("geometry_msgs/msg/Vector3"), bag.T("geometry_msgs/msg/Quaternion"), "tf2_msgs/msg/TFMessage"
+    TF = "tf2_msgs/msg/TFMessage"
+    extra = get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF) if ros1 else None
 
-    def transform(ns, parent, child, pos, q_wxyz):
-        x, y, z, w = mj_to_ros(q_wxyz)
-        return TS(header=bag.header(ns, parent), child_frame_id=child,
-                  transform=Tf(translation=V(*pos), rotation=Q(x=x, y=y, z=z, w=w)))
-    bag.write("/tf_static", TF, 0, bag.T(TF)(transforms=[transform(0, "base_link", "imu", [0, 0, 0.05], [1, 0, 0, 0])]))
-    for i in range(len(traj)):
-        ns = int(round(traj.t[i] * 1e9))
-        bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
-                  bag.joint_state(ns, GO1_JOINTS, traj.joint_pos[i], traj.joint_vel[i]))
-        if i % 5 == 0:
-            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns,
-                      bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
-        bag.write("/tf", TF, ns, bag.T(TF)(transforms=[
-            transform(ns, base_parent, "base_link", traj.base_pos[i], traj.base_quat[i]),
-            transform(ns, "base_link", "FR_thigh", [0.19, -0.13, 0.0], [1, 0, 0, 0]),
-            transform(ns, "world", "/box", traj.box_pos[i], traj.box_quat[i]),
+    def transforms(bag, i, ns):
+        T = bag.T
+
+        def transform(parent, child, pos, q_wxyz):
+            x, y, z, w = mj_to_ros(q_wxyz)
+            pose = T("geometry_msgs/msg/Transform")(translation=T("geometry_msgs/msg/Vector3")(*pos),
+                                                    rotation=T("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w))
+            return T("geometry_msgs/msg/TransformStamped")(header=bag.header(ns, parent), child_frame_id=child,
+                                                           transform=pose)
+        if i == 0:
+            imu = transform("base_link", "imu", [0, 0, 0.05], [1, 0, 0, 0])
+            bag.write("/tf_static", TF, ns, T(TF)(transforms=[imu]))
+        bag.write("/tf", TF, ns, T(TF)(transforms=[
+            transform(base_parent, "base_link", traj.base_pos[i], traj.base_quat[i]),
+            transform("base_link", "FR_thigh", [0.19, -0.13, 0.0], [1, 0, 0, 0]),
+            transform("world", "/box", traj.box_pos[i], traj.box_quat[i]),
         ]))
-    bag.close()
-    return path
+    # ROS 1's type store here has no tf2_msgs
+    return write_bag(path, traj, skip=("base", "box"), each=transforms, ros1=ros1, extra_types=extra)
 
 
 @pytest.mark.parametrize("ros1", [False, True])
@@ -707,22 +712,7 @@ def test_a_stream_stamped_on_another_clock_is_moved_onto_the_logs(tmp_path):
     """Odometry stamped with the robot's time since boot (here 1000 s behind the recorder's clock) beside
     motion capture and joints stamped on the recorder's: read on one clock, as if stamped there."""
     traj = make_traj()
-    path = tmp_path / "clocks"
-    bag = BagWriter(path)
-    lin_body = world_to_body(traj.base_quat, traj.base_linvel)
-    boot = -10**12
-    for i in range(len(traj)):
-        ns = int(round(traj.t[i] * 1e9)) + 2 * 10**12
-        bag.write("/joint_states", "sensor_msgs/msg/JointState", ns,
-                  bag.joint_state(ns, GO1_JOINTS, traj.joint_pos[i], traj.joint_vel[i]))
-        bag.write("/odom", "nav_msgs/msg/Odometry", ns,
-                  bag.odometry(ns + boot, traj.base_pos[i], traj.base_quat[i], lin_body[i], traj.base_angvel[i]))
-        bag.write("/mocap/box/pose", "geometry_msgs/msg/PoseStamped", ns,
-                  bag.pose_stamped(ns, traj.box_pos[i], traj.box_quat[i]))
-        if i % 5 == 0:
-            bag.write("/joint_commands", "sensor_msgs/msg/JointState", ns,
-                      bag.joint_state(ns, GO1_JOINTS, traj.ctrl[i]))
-    bag.close()
+    path = write_bag(tmp_path / "clocks", traj, offset_ns=2 * 10**12, stamp_shift={"base": -10**12})
     with pytest.warns(UserWarning, match=r"stamps on '/odom' are \+1000 s off"):
         got = read_log(path)
     assert_close(traj, got)
