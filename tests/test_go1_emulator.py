@@ -181,6 +181,25 @@ def test_bad_packets_are_counted_not_applied_and_link_loss_stops_the_state(start
     assert np.abs(states[-1].q - STAND_JOINTS).max() < 0.08
 
 
+def test_longest_gap_is_the_emulators_own_stall_not_a_link_loss_fault():
+    emu = emulator(faults=["link-loss@0.01"])
+    client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    client.bind((LOOP, 0))
+    try:
+        wall = iter([0.0, 0.002, 0.004, 0.067, 0.069, 0.071, 0.5, 0.6])
+        emu._clock = lambda: next(wall)
+        emu._packet(servo().encode(), client.getsockname())  # a client: states go out
+        for _ in range(5):
+            emu._tick()                   # sent at 0, 2, 4 ms, held up 63 ms, then 69 ms
+        assert emu.stats.sent == 5 and emu.stats.longest_gap == pytest.approx(0.063)
+        for _ in range(4):
+            emu._tick()                   # link-loss from 10 ms: the silence it makes is no gap
+        assert emu.stats.sent == 5 and emu.stats.longest_gap == pytest.approx(0.063)
+    finally:
+        client.close()
+        emu.close()
+
+
 def test_corrupt_fault_sends_states_the_sdk_rejects(started):
     emu, link = started(faults=["corrupt@0.15"])
     sock = link._sock

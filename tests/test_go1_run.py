@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import signal
 import socket
 import subprocess
@@ -37,6 +38,7 @@ class Emulator:
     def __init__(self, tmp_path, *args, duration=30):
         self.pose_port = free_port()
         self.record = tmp_path / "rx.csv"
+        self.summary = ""
         self.proc = subprocess.Popen(
             AMHE + ["emulate", "go1", "--task", "t1", "--port", "0", "--pose-to", f"127.0.0.1:{self.pose_port}",
                     "--record", str(self.record), "--duration", str(duration), *args],
@@ -51,6 +53,13 @@ class Emulator:
     def stop(self):
         self.proc.send_signal(signal.SIGINT)
         self.proc.wait(10)
+        self.summary = self.proc.stderr.read()
+
+    def longest_gap(self) -> float:
+        """The emulator's longest wall-clock gap between two states sent [s], from its closing line."""
+        m = re.search(r"longest state gap ([0-9.]+) ms", self.summary)
+        assert m, self.summary
+        return float(m.group(1)) / 1e3
 
     def rows(self):
         with open(self.record) as fh:
@@ -68,8 +77,8 @@ class Emulator:
 def emulator(tmp_path, request):
     made = []
 
-    def make(*args, duration=30):
-        emu = Emulator(tmp_path, *args, duration=duration)
+    def make(*args, duration=30, where=None):
+        emu = Emulator(where or tmp_path, *args, duration=duration)
         made.append(emu)
         return emu
     yield make
@@ -97,19 +106,33 @@ def first_valid_time(t, valid):
 
 @pytest.mark.parametrize("fault", ["link-loss", "corrupt"])
 def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, fault):
-    emu = emulator("--fault", f"{fault}@4.5")
-    proc, out = run_client(emu, tmp_path, "--arm", "--duration", "20")
-    emu.stop()
+    # A busy machine can hold the emulator itself up past the client's 40 ms state watchdog before the
+    # fault: the client then rightly damps early and this run cannot show the fault. Such a run is
+    # told by the emulator's own longest state gap, and only such a run is tried again.
+    for attempt in range(3):
+        where = tmp_path / f"try{attempt}"
+        where.mkdir()
+        emu = emulator("--fault", f"{fault}@4.5", where=where)
+        proc, out = run_client(emu, where, "--arm", "--duration", "20")
+        emu.stop()
+        t, valid, mode, q, kp, kd = emu.rows()
+        t_loss = first_valid_time(t, valid) + 4.5
+        servo = valid & (mode == SERVO).all(axis=1)
+        early = valid & (t < t_loss) & (t > t[np.argmax(servo)]) & damped(mode, kp, kd)
+        if not early.any():
+            break
+        assert emu.longest_gap() > 0.04, f"damped {t_loss - t[early][0]:.3f} s before the fault with no stall " \
+                                         f"of the state stream; the client said:\n{proc.stderr}"
+    else:
+        pytest.fail(f"the emulator stalled past the watchdog in all 3 runs:\n{emu.summary}")
     assert proc.returncode == 2, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "no valid robot state" in errors[0] and "Traceback" not in proc.stderr
     assert json.loads(proc.stdout)["failure"].startswith("no valid robot state")
-    t, valid, mode, q, kp, kd = emu.rows()
-    t_loss = first_valid_time(t, valid) + 4.5
     before = (t < t_loss) & valid
     assert (mode[before] == SERVO).all(axis=1).sum() > 500  # it was standing and walking on servo commands
     after = (t >= t_loss) & valid & damped(mode, kp, kd)
-    assert after.any(), "no damping command after the fault"
+    assert after.any(), f"no damping command after the fault; the client said:\n{proc.stderr}"
     assert t[after][0] - t_loss <= 0.05 + 0.004  # within 50 ms of the last state (+ two emulator ticks)
     assert damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # and damping from then on
     traj = read_log(str(out))  # the recording is closed and readable

@@ -132,6 +132,11 @@ class EmulatorStats:
         sent: LowState packets sent.
         poses: pose frames handed to the pose stream.
         ticks: plant steps taken (emulator time = ticks × 2 ms).
+        longest_gap: the longest wall-clock time between two LowState packets
+            sent back to back [s]; a gap past the client's ``state_timeout``
+            that no ``link-loss`` fault caused means the emulator itself was
+            held up (a busy or paused machine), and a client that damped
+            then did right.
     """
 
     valid: int = 0
@@ -141,6 +146,7 @@ class EmulatorStats:
     sent: int = 0
     poses: int = 0
     ticks: int = 0
+    longest_gap: float = 0.0
 
 
 def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray) -> np.ndarray:
@@ -277,6 +283,7 @@ class Go1Emulator:
         self._tau = np.zeros(_NJ)
         self._acc = np.zeros(6)
         self._next_pose = 0.0
+        self._last_sent: float | None = None
         self._stop = threading.Event()
         self._thread = None
         self._running = False
@@ -444,6 +451,12 @@ class Go1Emulator:
                 self._stats.sent += 1
             except OSError:
                 pass
+            now = self._clock()
+            if self._last_sent is not None:
+                self._stats.longest_gap = max(self._stats.longest_gap, now - self._last_sent)
+            self._last_sent = now
+        else:
+            self._last_sent = None  # a silence the emulator meant (no client yet, link-loss) is no gap
         self._send_poses()
 
     def _update_faults(self) -> None:
