@@ -243,3 +243,45 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
         short_clips = m.window_clips(clean, stop)
     want = int(round(min(max(0.1, noise_clip(read)), 1.0) / read.dt))
     assert long_clips.horizon.max() == want > short_clips.horizon.max() == int(round(0.1 / read.dt))
+
+
+def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():
+    """The online MHE's window of a Go1 run: the box's velocity from its mocap samples (smoothed as a log's
+    are), not the estimator's lagging low-pass; the noise measured and in W_x, as mhe-replay would see it."""
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
+    scene = Scene(SceneConfig())
+    plant = Go1Plant(scene, Go1Settings(), link=object(), poses=object())  # no network: the recording is filled here
+    rng = np.random.default_rng(3)
+    box0 = scene.model.qpos0[scene.box_qpos].copy()
+    box_pos = lambda t: box0[:3] + [0.2 * t, 0.0, 0.0]  # noqa: E731 - sliding at 0.2 m/s along x
+    for t in np.arange(0.0, 1.5, 1 / 120):  # 120 Hz motion capture with 1 mm of noise
+        plant._raw["box"].append((t, box_pos(t) + rng.normal(0, 0.001, 3), box0[3:], len(plant._raw["box"])))
+        plant._raw["base"].append((t, np.array([0.0, 0.0, 0.27]) + rng.normal(0, 0.001, 3), np.array([1.0, 0, 0, 0]),
+                                   len(plant._raw["base"])))
+    for t in np.arange(0.0, 1.5, 0.002):  # 500 Hz ticks; the estimator's box velocity still zero (a lag)
+        qpos = scene.model.qpos0.copy()
+        qpos[scene.box_qpos[:3]] = box_pos(t)
+        plant._rec["t"].append(t)
+        plant._rec["qpos"].append(qpos)
+        plant._rec["qvel"].append(np.zeros(scene.model.nv))
+        plant._rec["ctrl"].append(np.zeros(12))
+        plant._rec["tau"].append(np.zeros(12))
+    traj = plant.trajectory(last=1.0)
+    assert 0.95 <= traj.t[-1] - traj.t[0] <= 1.01
+    mid = slice(len(traj) // 4, 3 * len(traj) // 4)
+    np.testing.assert_allclose(traj.box_linvel[mid, 0].mean(), 0.2, atol=0.01)
+    assert traj.box_linvel[mid, 0].std() < 0.05  # smoothed: a backward difference of 1 mm noise at 120 Hz is 0.2 m/s
+    assert traj.meta["smoothing"]["box"]["position_window"] > 1
+    assert traj.meta["sensors"]["streams"]["box"]["position_noise_m"] == pytest.approx(0.001, rel=0.3)
+    w = StateWeights.for_log(traj)
+    assert w.sigma["box_linvel"] == np.inf and w.sigma["box_pos"] > DEFAULT_SIGMA["box_pos"]
+    assert w.sigma["base_linvel"] == DEFAULT_SIGMA["base_linvel"]  # the trunk's are the estimator's, kept
+    # the recording a log keeps is not smoothed: the box pose only where a sample arrived
+    rec = plant.recording()
+    assert rec.observed["box"].sum() == len(plant._raw["box"]) and "smoothing" not in rec.meta
+    # an MHE given no W_x takes each window's from its sensor report
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+    with MovingHorizonEstimator(scene, space, MHESettings(iters=1, samples=3), nthread=1) as mhe:
+        assert not mhe.update(traj, float(traj.t[-1])).skipped
+        assert mhe._cost.weights.sigma == w.sigma

@@ -215,8 +215,11 @@ class RolloutCost:
         if self._own_pool:
             self.pool.close()
 
-    def set_clips(self, clips: Clips) -> None:
-        """Replace the clips (grouped by horizon so no step is simulated twice)."""
+    def set_clips(self, clips: Clips, weights: StateWeights | None = None) -> None:
+        """Replace the clips (grouped by horizon so no step is simulated twice), and ``W_x`` if given."""
+        if weights is not None:
+            self.weights = weights
+            self._w, self._role = weights.vector(self.scene)
         self.clips = clips
         self._groups = [np.flatnonzero(clips.horizon == h) for h in np.unique(clips.horizon)]
         # (N_c, H_max, 2nv) weights with unobserved roles zeroed

@@ -183,7 +183,11 @@ class MovingHorizonEstimator:
         scene: the model ``f``.
         space: free parameters; its prior mean is the starting estimate ``p̂_0``.
         settings: :class:`MHESettings`.
-        weights: ``W_x`` (default :class:`~amhe_cli.estimation.cost.StateWeights`).
+        weights: ``W_x``; None (default): each update's from the window's own
+            sensor report (:meth:`~amhe_cli.estimation.cost.StateWeights.for_log`:
+            the default weights on a clean trajectory; the measured noise added,
+            and velocities differentiated from smoothed poses left out, on a
+            motion-capture one such as a live Go1's).
         pool: rollout pool to share (e.g. with a planner); else one is created.
         nthread: threads of a pool created here.
 
@@ -200,7 +204,7 @@ class MovingHorizonEstimator:
         if unknown:
             raise AmheError(f"unknown parameter {', '.join(sorted(unknown))} in the W_p pull")
         self.scene, self.space = scene, space
-        self.weights = weights or StateWeights()
+        self.weights = weights
         self._own_pool = pool is None
         self.pool = pool or RolloutPool(scene.model, nthread)
         self._cost: RolloutCost | None = None
@@ -242,10 +246,11 @@ class MovingHorizonEstimator:
         clips = self.window_clips(traj, stop)
         if clips is None:
             return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True)
+        weights = self.weights or StateWeights.for_log(traj)
         if self._cost is None:
-            self._cost = RolloutCost(self.scene, self.space, clips, self.weights, pool=self.pool)
+            self._cost = RolloutCost(self.scene, self.space, clips, weights, pool=self.pool)
         else:
-            self._cost.set_clips(clips)
+            self._cost.set_clips(clips, weights)
         prev = self.mean.copy()
         self._cost.set_prior(prev, self.pull_std)
         mu = prev.copy()

@@ -104,6 +104,46 @@ def _pose_windows(s: "_Series", dt: float, smooth: int | str) -> tuple[int, int,
             sig_p, sig_r)
 
 
+def resample_pose(s: "_Series", grid: np.ndarray, dt: float, smooth: int | str, meta: dict,
+                  role: str) -> dict[str, np.ndarray]:
+    """One pose stream on the grid, smoothed where its noise shows, with its velocities.
+
+    Args:
+        s: the stream's messages: ``fields["pos"]`` (N, 3) [m], ``fields["quat"]`` (N, 4) (w, x, y, z),
+            and where logged ``linvel`` (N, 3) [m/s] world frame and ``angvel`` (N, 3) [rad/s] body frame;
+            ``t_ns`` (N,) message times.
+        grid: (T,) int64 grid times [ns]; dt: its spacing [s].
+        smooth: ``"auto"``, 0 or a window in samples (:func:`~amhe_cli.io.reader.read_log`).
+        meta: the trajectory's meta: a smoothing applied is noted in ``meta["smoothing"][role]``
+            and, as a line for the user, in ``meta["warnings"]``.
+        role: ``"base"`` or ``"box"``.
+    Returns:
+        ``pos`` (T, 3), ``quat`` (T, 4), ``linvel`` (T, 3), ``angvel`` (T, 3): the logged velocities where
+        the stream has them, else the slope of the Savitzky–Golay fit (or a backward difference).
+    """
+    i, u = _bracket(s.t_ns, grid)
+    pos = _lerp(s.fields["pos"], i, u)
+    quat = _slerp(s.t_ns, s.fields["quat"], grid)
+    wp, wr, sig_p, sig_r = _pose_windows(s, dt, smooth)
+    linvel = _backward_diff(pos, dt)
+    if wp > 1:
+        pos, linvel = savgol(pos, wp, dt)
+    if wr > 1:
+        quat = quat_normalize(savgol(quat_make_continuous(quat), wr, dt)[0])
+    angvel = _backward_angvel(quat, dt)
+    if "linvel" in s.fields:
+        linvel = _lerp(s.fields["linvel"], i, u)
+        angvel = _lerp(s.fields["angvel"], i, u)
+    if wp > 1 or wr > 1:
+        meta.setdefault("smoothing", {})[role] = {"position_window": wp, "orientation_window": wr,
+                                                 "position_noise_m": sig_p, "orientation_noise_rad": sig_r}
+        what = "smoothed (--smooth)" if smooth != "auto" else \
+            f"pose noise ~{sig_p * 1e3:.2g} mm / {sig_r * 1e3:.2g} mrad: smoothed"
+        msg = f"{role} {what} over {wp * dt * 1e3:.0f} ms (position) / {wr * dt * 1e3:.0f} ms (orientation)"
+        meta.setdefault("warnings", []).append(msg)  # issued with the others at the end of read_log
+    return {"pos": pos, "quat": quat, "linvel": linvel, "angvel": angvel}
+
+
 def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | str, meta: dict) -> Trajectory:
     """Put the required roles on one grid (see :func:`read_log`)."""
     cmd = series["joint_commands"]
@@ -140,28 +180,8 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
     # Free bodies.
     for role in ("base", "box"):
         s = series[role]
-        i, u = _bracket(s.t_ns, grid)
-        pos = _lerp(s.fields["pos"], i, u)
-        quat = _slerp(s.t_ns, s.fields["quat"], grid)
+        out.update({f"{role}_{k}": v for k, v in resample_pose(s, grid, dt, smooth, meta, role).items()})
         measured[role] = "linvel" in s.fields
-        wp, wr, sig_p, sig_r = _pose_windows(s, dt, smooth)
-        linvel = _backward_diff(pos, dt)
-        if wp > 1:
-            pos, linvel = savgol(pos, wp, dt)
-        if wr > 1:
-            quat = quat_normalize(savgol(quat_make_continuous(quat), wr, dt)[0])
-        angvel = _backward_angvel(quat, dt)
-        if measured[role]:
-            linvel = _lerp(s.fields["linvel"], i, u)
-            angvel = _lerp(s.fields["angvel"], i, u)
-        if wp > 1 or wr > 1:
-            meta.setdefault("smoothing", {})[role] = {"position_window": wp, "orientation_window": wr,
-                                                     "position_noise_m": sig_p, "orientation_noise_rad": sig_r}
-            what = "smoothed (--smooth)" if smooth != "auto" else \
-                f"pose noise ~{sig_p * 1e3:.2g} mm / {sig_r * 1e3:.2g} mrad: smoothed"
-            msg = f"{role} {what} over {wp * dt * 1e3:.0f} ms (position) / {wr * dt * 1e3:.0f} ms (orientation)"
-            meta["warnings"].append(msg)  # issued with the others at the end of read_log
-        out.update({f"{role}_pos": pos, f"{role}_quat": quat, f"{role}_linvel": linvel, f"{role}_angvel": angvel})
         observed[role] = _observed_interp(s.t_ns, grid, s.period_ns())
 
     # Commands: zero-order hold of the last command at or before each grid time.
