@@ -231,7 +231,7 @@ class Go1Plant(Plant):
         and its lag biases the fit (a recorded run replayed with an 80 ms
         low-pass on the box's velocity read a 4 kg box as 6.5–7.6 kg). Live
         against ``amhe emulate go1`` (task t1, adaptive, 24 seeds, median / 90th
-        percentile of the final estimate's error, before → after): clean poses,
+        percentile of the final estimate's error, the estimator's → the reader's): clean poses,
         mass 5.7 / 16.3 % → 4.7 / 13.8 %, μ 0.028 / 0.113 → 0.013 / 0.070;
         1 mm / 0.2° pose noise, mass 14.9 / 31.8 % → 11.3 / 30.7 %, μ
         0.053 / 0.125 → 0.061 / 0.101 (there the MHE's own noise is the limit,
