@@ -23,7 +23,7 @@ from amhe_cli.io.trajectory import Trajectory
 from amhe_cli.io.quat import (quat_make_continuous, quat_normalize, quat_relative_rotvec, rotation_from_wxyz,
                               rotation_to_wxyz)
 from amhe_cli.io.roles import REQUIRED_ROLES
-from amhe_cli.io.smoothing import CLEAN_SIGMA_ROT, noise_sigma, savgol, window_for
+from amhe_cli.io.smoothing import CLEAN_SIGMA_ROT, savgol, window_for
 from amhe_cli.io.unpack import _Series
 
 #: A grid time counts as observed if its bracketing messages are at most this
@@ -94,8 +94,7 @@ def _pose_windows(s: "_Series", dt: float, smooth: int | str) -> tuple[int, int,
         w = int(smooth) if smooth and smooth > 1 else 1
         return w, w, 0.0, 0.0
     period = max(s.period_ns() * 1e-9, dt)
-    sig_p = float(noise_sigma(s.fields["pos"]).max())
-    sig_r = float(noise_sigma(2.0 * quat_make_continuous(s.fields["quat"])[:, 1:]).max())
+    sig_p, sig_r = s.pose_noise()
     # windows are chosen on the raw message rate, then expressed in grid samples
     wp = window_for(sig_p, period)
     wr = window_for(sig_r, period, target=0.2, clean=CLEAN_SIGMA_ROT)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import median_abs_deviation
 
-from amhe_cli.io.quat import quat_make_continuous
 from amhe_cli.io.smoothing import noise_sigma
 from amhe_cli.io.unpack import _Series
 
@@ -58,8 +57,9 @@ def stream_report(s: _Series) -> dict:
     })
     f = s.fields
     if "pos" in f:
-        out["position_noise_m"] = float(f"{noise_sigma(f['pos']).max():.3g}")
-        out["orientation_noise_rad"] = float(f"{noise_sigma(2.0 * quat_make_continuous(f['quat'])[:, 1:]).max():.3g}")
+        sig_p, sig_r = s.pose_noise()
+        out["position_noise_m"] = float(f"{sig_p:.3g}")
+        out["orientation_noise_rad"] = float(f"{sig_r:.3g}")
     elif "dq" in f or "tau" in f:
         out["joint_noise_rad"] = float(f"{np.median(noise_sigma(f['q'])):.3g}")
     return out

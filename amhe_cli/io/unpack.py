@@ -9,7 +9,7 @@ are taken from the commands, a gains topic or an MCAP metadata record.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -18,6 +18,7 @@ from amhe_cli.errors import AmheError
 from amhe_cli.io.joints import match_joints
 from amhe_cli.io.logfile import _one_line
 from amhe_cli.io.quat import body_to_world, quat_make_continuous, ros_to_mj
+from amhe_cli.io.smoothing import noise_sigma
 from amhe_cli.io.roles import GAINS_ROLE, _LOWCMD_TYPES, _LOWSTATE_TYPES, _short_type
 
 #: Name of the MCAP metadata record that carries the PD gains.
@@ -44,10 +45,21 @@ class _Series:
     latency_ns: float | None = None
     #: the header frames the poses are given in (``frame_id``, leading ``/`` dropped; none for joints)
     frames: tuple = ()
+    _pose_noise: tuple | None = field(default=None, repr=False, compare=False)
 
     def period_ns(self) -> float:
         """Median spacing of the messages [ns]."""
         return float(np.median(np.diff(self.t_ns))) if len(self.t_ns) > 1 else float("inf")
+
+    def pose_noise(self) -> tuple[float, float]:
+        """White-noise σ of a pose stream: position [m] and orientation [rad], the larger axis of each
+        (:func:`~amhe_cli.io.smoothing.noise_sigma`; the orientation as twice the quaternion's vector
+        part). Computed once: the sensor report and the smoothing window both ask."""
+        if self._pose_noise is None:
+            f = self.fields
+            self._pose_noise = (float(noise_sigma(f["pos"]).max()),
+                                float(noise_sigma(2.0 * quat_make_continuous(f["quat"])[:, 1:]).max()))
+        return self._pose_noise
 
 
 def _attr(obj: Any, *names: str) -> Any:
