@@ -16,7 +16,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from amhe_cli.estimation.clips import ROLES, make_clips, sample_clips
+from amhe_cli.estimation.clips import ROLES, choose_informative, make_clips, sample_clips
 from amhe_cli.estimation.cost import DEFAULT_SIGMA, RolloutCost, StateWeights
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.identify import IdentifySettings, identify
@@ -32,7 +32,7 @@ from amhe_cli.model.scene import (
     uniform_box_inertia,
 )
 from amhe_cli.io.trajectory import GO1_JOINTS
-from amhe_cli.estimation.uncertainty import curvature
+from amhe_cli.estimation.uncertainty import clip_information, curvature
 from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley
 
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
@@ -529,12 +529,47 @@ def test_uninformed_parameter_keeps_prior_std(traj, scene):
         assert cur.std[i] == pytest.approx(space.std0[i], rel=0.05)
 
 
+def test_clip_information_sees_the_bumps_not_the_rest(traj, scene, space2):
+    """A clip of the resting box tells nothing of its mass or friction; a clip over a bump tells both."""
+    speed = _box_speed(traj)
+    bump = int(np.flatnonzero(speed > 0.05)[0]) - 20  # just before the first push starts the box
+    rest = make_clips(traj, scene, [50, 200, bump, bump + 60], [75, 75, 75, 75])
+    with RolloutCost(scene, space2, rest) as c:
+        info = clip_information(c, space2.mean0)
+    assert info.shape == (4, 2) and np.all(info >= 0)
+    assert info[:2].max() < 1e-6 * info[2:].min(), info  # columns: mass, friction (prior-σ units)
+    assert np.all(info[2:] > 1.0), info
+
+
+def test_choose_informative_keeps_the_clips_a_rare_parameter_needs():
+    """Five of 100 candidate clips inform the mass (the bumps), all of them the friction (the slides):
+    20 clips chosen by information hold the five bumps, where 20 drawn by box motion would hold one."""
+    rng = np.random.default_rng(0)
+    info = np.zeros((100, 2))
+    bumps = np.array([7, 31, 55, 62, 90])
+    info[bumps, 0] = rng.uniform(1.0, 3.0, 5)
+    info[:, 1] = rng.uniform(0.5, 1.5, 100)
+    held = []
+    for seed in range(50):
+        idx = choose_informative(info, 20, np.random.default_rng(seed))
+        assert idx.size == 20 and np.all(np.diff(idx) > 0)  # sorted, no clip twice
+        held.append(np.isin(bumps, idx).sum())
+    assert np.mean(held) >= 4.5, held  # a uniform draw holds 1 of the 5 on average
+    np.testing.assert_array_equal(choose_informative(info[:10], 20, rng), np.arange(10))  # fewer: all of them
+    np.testing.assert_array_equal(choose_informative(info, 20, np.random.default_rng(3)),
+                                  choose_informative(info, 20, np.random.default_rng(3)))
+
+
 # --------------------------------------------------------------------------- identify
-def test_identify_recovers_truth(traj):
+@pytest.mark.parametrize("candidates", [1, 3])
+def test_identify_recovers_truth(traj, candidates):
+    """By box motion (1) and by information among 3 × 12 candidate clips (3), the truth is recovered."""
     scene = Scene(SceneConfig())
     space = ParameterSpace(scene, free=("box_mass", "box_friction"))
-    settings = IdentifySettings(params=("box_mass", "box_friction"), n_clips=12, max_gen=25, popsize=10)
+    settings = IdentifySettings(params=("box_mass", "box_friction"), n_clips=12, max_gen=25, popsize=10,
+                                candidates=candidates)
     res = identify(traj, scene, space, settings)
+    assert len(res.clips) == 12
     mass, mu = res.estimate
     with RolloutCost(scene, space, res.clips, prior_weight=settings.prior_weight) as c:
         j_truth = float(c(_truth_vec(space)[None])[0])

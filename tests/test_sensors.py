@@ -202,8 +202,8 @@ def _with_box_noise(tmp_path, sigma: float, seed: int):
 def test_mhe_skips_a_box_at_rest_that_only_noise_moves(tmp_path):
     """With 1 mm of pose noise a resting box reads a speed, so its clips pass the MHE's speed test;
     the travel test (the noise's own scale, from the log) drops them and keeps the bumps."""
-    from amhe_cli.estimation.clips import box_travel, window_clips
-    from amhe_cli.estimation.mhe import MHESettings, rest_travel
+    from amhe_cli.estimation.clips import box_travel, rest_travel, window_clips
+    from amhe_cli.estimation.mhe import MHESettings
     traj, read, clean = _with_box_noise(tmp_path, 0.001, seed=1)
     assert rest_travel(clean) == 0.0
     travel = rest_travel(read)

@@ -65,6 +65,12 @@ def identify_options(f):
                      help="Belief YAML to start from (its values and stds). Default: " + nominal_prior_text() + "."),
         click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000),
                      help="Number of clips N_c."),
+        click.option("--candidates", default=IdentifySettings.candidates, show_default=True,
+                     type=click.IntRange(1, 64),
+                     help="Above 1: draw this many times N_c clips where the box moves and keep the N_c that "
+                          "inform the free parameters most (half the seed-to-seed spread where the model "
+                          "matches the log; on a robot unlike its model it weighs the bumps where the "
+                          "mismatch acts — free robot_box_friction with it)."),
         click.option("--horizon", default="0.1,0.2", show_default=True, metavar="MIN,MAX",
                      help="Clip horizon range [s], drawn uniformly."),
         click.option("--popsize", default=12, show_default=True, type=click.IntRange(2, 10000),
@@ -84,14 +90,15 @@ def identify_options(f):
 
 
 def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed,
-                  t_range=None) -> IdentifySettings:
+                  t_range=None, candidates: int = 1) -> IdentifySettings:
     """:class:`IdentifySettings` from the shared options (validated)."""
     hr = parse_range(horizon, "--horizon")
     if hr[0] <= 0:
         raise AmheError(f"--horizon {horizon}: expected positive seconds")
     tr = parse_range(t_range, "--t-range") if t_range else None
     return IdentifySettings(params=parse_names(params), n_clips=n_clips, horizon=hr, popsize=popsize,
-                            max_gen=generations, prior_weight=prior_weight, seed=seed, t_range=tr)
+                            max_gen=generations, prior_weight=prior_weight, seed=seed, t_range=tr,
+                            candidates=candidates)
 
 
 def check_outputs(force: bool, *outputs: tuple[str, str | Path | None]) -> list[Path | None]:

@@ -24,8 +24,8 @@ from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_si
               help="Write a PNG: cost over generations, each parameter's path to its estimate ± σ, "
                    "recorded vs predicted box velocity and position error over the clips.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
-def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips, horizon, popsize, generations,
-                 prior_weight, t_range, seed, threads, out, force, as_json, plot, quiet):
+def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips, candidates, horizon, popsize,
+                 generations, prior_weight, t_range, seed, threads, out, force, as_json, plot, quiet):
     """Identify box mass, inertia and box-floor friction from LOG (SPI-style CMA-ES).
 
     With no LOG, runs on the bundled example log. Every output (--out, --plot)
@@ -39,7 +39,8 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         log = str(logs[0])
         if not as_json:
             click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
-    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range)
+    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range,
+                             candidates=candidates)
     smooth = parse_smooth(smooth)
     out_path, plot_path = check_outputs(force, ("--out", default_output(out, log, ".belief.yaml")),
                                         ("--plot", check_png_name(plot)))

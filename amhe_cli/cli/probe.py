@@ -40,7 +40,8 @@ BEST_CASE_NOTE = ("σ here is a best case: the cost's curvature (Fisher informat
 @click.option("--plot", type=click.Path(), default=None, help="PNG of the identification (sim target).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def probe_cmd(logs, target, truth_pairs, record, record_only, topics, map_file, box_size, smooth, params, prior,
-              n_clips, horizon, popsize, generations, prior_weight, seed, threads, out, force, as_json, plot, quiet):
+              n_clips, candidates, horizon, popsize, generations, prior_weight, seed, threads, out, force, as_json, plot,
+              quiet):
     """Probe for a first belief (--target sim), or report what each LOG can tell.
 
     \b
@@ -50,7 +51,7 @@ def probe_cmd(logs, target, truth_pairs, record, record_only, topics, map_file, 
                                                 well each parameter can be identified
     """
     from amhe_cli.io.truth import TRUTH_RECORD
-    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed)
+    settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, candidates=candidates)
     free = settings.params
     if target is None:
         if not logs:

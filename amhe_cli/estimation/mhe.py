@@ -31,41 +31,19 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.clips import LEVER, window_clips
+from amhe_cli.estimation.clips import rest_travel, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.errors import AmheError
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step
 from amhe_cli.model.scene import Scene
-from amhe_cli.io.smoothing import CLEAN_SIGMA, CLEAN_SIGMA_ROT, pose_noise, velocity_noise
+from amhe_cli.io.smoothing import velocity_noise
 from amhe_cli.io.trajectory import Trajectory
 
 #: Default ``W_p`` pull standard deviations per parameter (physical units; inertia as shape ratio).
 DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robot_box_friction": 0.05,
                 "robot_kp": 2.0, "robot_kd": 0.2, "trunk_payload": 0.2}
-
-
-#: A clip counts as the box at rest unless the box went this many standard deviations of the pose noise
-#: further than a resting box appears to (:func:`rest_travel`).
-REST_SIGMAS = 4.0
-
-
-def rest_travel(traj: Trajectory) -> float:
-    """How far [m] a box at rest appears to go over a clip, by the log's measured pose noise (0 if clean).
-
-    :data:`REST_SIGMAS` × √2 × the pose noise as read
-    (:func:`~amhe_cli.io.smoothing.pose_noise`; position and :data:`LEVER` ×
-    orientation): the difference of two noisy poses. On ``noisy_b`` (1 mm /
-    0.2° at 120 Hz, smoothed over 58 ms) it is 4.3 mm, and without it windows
-    of the box at rest from 1 s on counted as informative: the MHE fitted the
-    noise, and its friction fell to 0.36 where the truth is 0.55 before the
-    robot had touched the box.
-    """
-    pos, rot = pose_noise(traj.meta, "box", traj.dt)
-    if pos <= CLEAN_SIGMA and rot <= CLEAN_SIGMA_ROT:  # what the reader takes for no noise
-        return 0.0
-    return float(REST_SIGMAS * np.sqrt(2.0) * np.hypot(pos, LEVER * rot))
 
 
 #: Friction resolution [-] a clip must reach against the noise of its recorded initial velocity, in
