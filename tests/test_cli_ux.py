@@ -108,6 +108,21 @@ def test_identify_stopped_by_generations_warns_and_says_not_converged(capsys, tm
     assert "not converged" in out and "consistent with" not in out
 
 
+def test_a_residual_that_flags_a_mismatched_model_says_what_to_free():
+    """Past MISMATCH_RMS the warning names the robot-side parameters not yet free and the probe
+    that tells which the log can separate; below it, or unconverged (not judged), nothing."""
+    from amhe_cli.cli.common import MISMATCH_RMS, mismatch_warning
+    box = SimpleNamespace(params=("box_mass", "box_inertia", "box_friction"))
+    text = mismatch_warning(SimpleNamespace(converged=True, residual_rms=2 * MISMATCH_RMS, settings=box))
+    names = "box_mass,box_inertia,box_friction,robot_box_friction,robot_kp,robot_kd,trunk_payload"
+    assert f"--params {names}" in text and f"amhe probe LOG --params {names}" in text and "biased" in text
+    assert mismatch_warning(SimpleNamespace(converged=True, residual_rms=0.5 * MISMATCH_RMS, settings=box)) is None
+    assert mismatch_warning(SimpleNamespace(converged=False, residual_rms=2 * MISMATCH_RMS, settings=box)) is None
+    every = SimpleNamespace(params=("box_mass", "robot_box_friction", "robot_kp", "robot_kd", "trunk_payload"))
+    text = mismatch_warning(SimpleNamespace(converged=True, residual_rms=2 * MISMATCH_RMS, settings=every))
+    assert "biased" in text and "--params" not in text  # nothing left to free: the flag alone
+
+
 # -- 4. probe: several logs, units, the best-case note, a warning once, an empty file ---------
 
 def test_probe_takes_two_logs(capsys):
