@@ -533,8 +533,8 @@ def test_clip_information_sees_the_bumps_not_the_rest(traj, scene, space2):
     """A clip of the resting box tells nothing of its mass or friction; a clip over a bump tells both."""
     speed = _box_speed(traj)
     bump = int(np.flatnonzero(speed > 0.05)[0]) - 20  # just before the first push starts the box
-    rest = make_clips(traj, scene, [50, 200, bump, bump + 60], [75, 75, 75, 75])
-    with RolloutCost(scene, space2, rest) as c:
+    rest_and_bump = make_clips(traj, scene, [50, 200, bump, bump + 60], [75, 75, 75, 75])
+    with RolloutCost(scene, space2, rest_and_bump) as c:
         info = clip_information(c, space2.mean0)
     assert info.shape == (4, 2) and np.all(info >= 0)
     assert info[:2].max() < 1e-6 * info[2:].min(), info  # columns: mass, friction (prior-σ units)
