@@ -103,9 +103,10 @@ class IdentifySettings:
             model the informative clips are the bumps, where the mismatch acts:
             ``mismatch_b`` −16.7 ± 7.9 % against −4.7 ± 5.2 % (with
             ``robot_box_friction`` freed +8.8 ± 2.4 % against +9.9 ± 3.1 %), a
-            noisy mismatched log +14.0 ± 8.3 % against −4.0 ± 9.9 %. Over the six
-            logs measured the draw by motion had the lower rms error on four,
-            so it stays the default (docs/reference.md#identification).
+            noisy mismatched log +14.0 ± 8.3 % against −4.0 ± 9.9 %. Against
+            information-chosen clips with ``robot_box_friction`` freed, the draw
+            by motion had the lower rms mass error on four of six logs, so it
+            stays the default (docs/reference.md#identification).
             The pre-pass costs ``d + 1`` rollouts of every candidate clip and
             the chosen clips are longer and richer in contacts: 1.1–1.2× the
             wall time.
