@@ -108,6 +108,19 @@ def test_identify_stopped_by_generations_warns_and_says_not_converged(capsys, tm
     assert "not converged" in out and "consistent with" not in out
 
 
+def test_identify_chooses_clips_by_information_when_asked(capsys, tmp_path, example):
+    """--candidates 3: as many clips as asked, said in the summary and kept in the belief's settings."""
+    import yaml
+    code, out, err = amhe(capsys, "identify", example, *FAST_ID, "--generations", "3", "--candidates", "3",
+                          "--out", tmp_path / "b.yaml")
+    assert code == 0, err
+    assert "4 clips (the most informative of 3× as many)" in out
+    belief = yaml.safe_load((tmp_path / "b.yaml").read_text())
+    assert "candidates: 3" in yaml.safe_dump(belief)
+    code, out, err = amhe(capsys, "identify", example, *FAST_ID, "--candidates", "0", "--out", tmp_path / "c.yaml")
+    assert code == 2 and "'--candidates': 0 is not in the range" in err and "Traceback" not in err
+
+
 def test_a_residual_that_flags_a_mismatched_model_says_what_to_free():
     """Past MISMATCH_RMS the warning names the robot-side parameters not yet free and the probe
     that tells which the log can separate; below it, or unconverged (not judged), nothing."""

@@ -285,7 +285,9 @@ def print_summary(result: IdentifyResult, truth: dict | None = None) -> None:
     labels = s["labels"]
     if "box_mass" in labels and "box_friction" in labels:
         click.echo(f"mass-friction correlation {corr[labels.index('box_mass'), labels.index('box_friction')]:+.2f}")
-    click.echo(f"{s['clips']} clips, {s['generations']} generations"
+    chosen = (f" (the most informative of {result.settings.candidates}× as many)"
+              if result.settings.candidates > 1 else "")
+    click.echo(f"{s['clips']} clips{chosen}, {s['generations']} generations"
                f"{'' if result.converged else ' (stopped by --generations, not converged)'}, "
                f"{s['evaluations']} candidates, {s['wall_time_s']:.1f} s")
 
