@@ -84,8 +84,13 @@ class IdentifySettings:
             against 6.2 %), 2σ coverage 95.5 % against 94.5 %, in 0.85 of the
             time (2 cores, ``amhe identify`` on a 20 s log: 31.9 s against
             37.5 s, medians of 3 in one session; 27.7 s against 32.7 s on a
-            quieter day). Of the 27.7 s, 24 s are rollouts at raw
-            ``mujoco.rollout`` speed, 2.5 s reading the log and 1.3 s imports.
+            quieter day). Of the 27.7 s, 24 s were rollouts at raw
+            ``mujoco.rollout`` speed, 2.5 s reading the log and 1.3 s imports;
+            the model's sparse constraint Jacobian then cut the whole to 23.9 s
+            against 30.9 s (same session, same estimate). Stopping once CMA-ES's
+            search spread is inside the data's σ (after 8–16 generations) did
+            not hold: const_a ± 2.2 % against ± 0.9 %, the 2.5 kg example's
+            worst 17 % against 4 % (8 seeds × 6 logs).
             What did not hold: popsize 10
             (worst mass 18.5 %, coverage 87 %), and the first 8 generations on
             every other clip (0.67 of the time; noisy log worst 12.6 %, μ
