@@ -68,6 +68,9 @@ class SceneConfig:
         regions: floor regions; one unbounded region = a uniform floor.
         timestep: model timestep [s].
         kp, kd: (12,) joint PD gains [N·m/rad], [N·m·s/rad]; None = model's 55/3.
+        trunk_payload: mass [kg] added to the trunk at its centre of mass (its
+            inertia about the CoM unchanged): what a log's robot carries beyond
+            the model (:mod:`~amhe_cli.estimation.payload`).
     """
 
     box_size: tuple[float, float, float] = (0.38, 0.38, 0.38)
@@ -79,6 +82,7 @@ class SceneConfig:
     timestep: float = 0.002
     kp: tuple[float, ...] | None = None
     kd: tuple[float, ...] | None = None
+    trunk_payload: float = 0.0
 
     @property
     def robot_floor(self) -> float:
@@ -103,6 +107,7 @@ class SceneConfig:
             "timestep": self.timestep,
             "kp": None if self.kp is None else [float(x) for x in self.kp],
             "kd": None if self.kd is None else [float(x) for x in self.kd],
+            "trunk_payload": float(self.trunk_payload),
         }
 
     @classmethod
@@ -319,6 +324,11 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
     for i, r in enumerate(cfg.regions):
         spec.add_pair(name=f"box_floor_{i}", geomname1="box", geomname2=f"floor_region_{i}",
                       condim=3, friction=[r.mu, r.mu, 0.005, 0.0001, 0.0001])
+    if cfg.trunk_payload:
+        trunk = spec.body("trunk")
+        if not trunk.mass + cfg.trunk_payload > 0:
+            raise AmheError(f"trunk payload {cfg.trunk_payload:+.3f} kg leaves the trunk without mass")
+        trunk.mass = trunk.mass + cfg.trunk_payload
     model = spec.compile()
     if cfg.kp is not None or cfg.kd is not None:
         set_pd_gains(model, cfg.kp if cfg.kp is not None else DEFAULT_KP, cfg.kd if cfg.kd is not None else DEFAULT_KD)
