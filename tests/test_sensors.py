@@ -15,7 +15,10 @@ import numpy as np
 import pytest
 
 from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.clips import REST_FLOOR, box_travel, robot_box_clear, sample_rest_clips
 from amhe_cli.estimation.gains import applied_gains, fit_gains
+from amhe_cli.estimation.payload import fit_payload
 from amhe_cli.estimation.identify import IdentifySettings, identify
 from amhe_cli.estimation.problem import example_logs, load_problem
 from amhe_cli.estimation.timing import mocap_offset
@@ -25,7 +28,7 @@ from amhe_cli.io.reader import read_log
 from amhe_cli.io.sensors import stream_report
 from amhe_cli.io.unpack import _Series
 from amhe_cli.io.writer import write_mcap
-from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig, set_pd_gains
 from amhe_cli.plants.sim import SimPlant
 
@@ -33,12 +36,12 @@ BOX_XY = (0.28 + 0.19 + 0.01, 0.0)
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
 
 
-def _lunge_log(kp=55.0, kd=3.0):
-    """A lunge probe (three head bumps) by a robot whose servo applies ``kp``/``kd``; its
-    trajectory states the nominal 55/3, as a lab's command log would."""
-    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+def _lunge_log(kp=55.0, kd=3.0, payload=0.0, box_xy=BOX_XY):
+    """A lunge probe (three head bumps) by a robot whose servo applies ``kp``/``kd`` and whose
+    trunk carries ``payload`` [kg]; its trajectory states the nominal 55/3, as a lab's command log would."""
+    plant = SimPlant(SceneConfig(trunk_payload=payload), truth=dict(TRUTH))
     set_pd_gains(plant.model, kp, kd)
-    q, _ = plant.scene.standing_state(box_xy=BOX_XY)
+    q, _ = plant.scene.standing_state(box_xy=box_xy)
     plant.reset(q)
     for u in lunge_schedule():
         plant.step(u)
@@ -174,6 +177,84 @@ def test_nuisance_parameters_write_the_model():
     m.actuator_gainprm[:, 0], m.actuator_biasprm[:, :3] = 1.0, 0.0
     box_only.write(m, box_only.mean0)
     assert np.all(m.actuator_gainprm[:, 0] == 1.0) and np.all(m.actuator_biasprm[:, :3] == 0.0)
+
+
+#: The box out of the lunging robot's reach (its head plate ends 0.28 m ahead of the trunk, the box's
+#: half diagonal is 0.27 m): every clip is one of the box at rest.
+FAR_BOX = (1.5, 0.0)
+
+
+@pytest.fixture(scope="module")
+def heavy_robot_log():
+    return _lunge_log(payload=0.6, box_xy=FAR_BOX)
+
+
+def test_payload_is_fitted_where_the_box_rests(heavy_robot_log):
+    """A robot 0.6 kg heavier than its model: its own lunges, the box far away, tell the payload."""
+    fit = fit_payload(heavy_robot_log, Scene(SceneConfig()), nthread=2)
+    assert fit is not None and fit.clips == 32 and not fit.at_edge
+    assert fit.value == pytest.approx(0.6, abs=0.03), fit
+    assert 0 < fit.std < 0.05
+    # the robot that is its model reads no payload
+    light = fit_payload(_lunge_log(box_xy=FAR_BOX), Scene(SceneConfig()), nthread=2)
+    assert abs(light.value) < 0.03, light
+    # a scene that already carries a payload is searched around it, and finds the same robot
+    again = fit_payload(heavy_robot_log, Scene(SceneConfig(trunk_payload=0.6)), nthread=2)
+    assert again.value == pytest.approx(fit.value, abs=0.01)
+
+
+def test_rest_clips_keep_the_box_still_and_out_of_the_robots_reach(heavy_robot_log):
+    scene = Scene(SceneConfig())
+    clips = sample_rest_clips(heavy_robot_log, scene, 16, rng=np.random.default_rng(0))
+    assert clips is not None and len(clips) == 16
+    ends = clips.start + clips.horizon
+    assert np.all(box_travel(heavy_robot_log, clips.start, clips.horizon) <= REST_FLOOR)
+    assert np.all(robot_box_clear(heavy_robot_log, scene, clips.start, int(clips.horizon.max())))
+    assert np.all(ends < len(heavy_robot_log))
+    # the lunge log with the box at the head plate: the robot is always within reach, so no clip
+    near = _lunge_log()
+    assert not robot_box_clear(near, scene, np.arange(0, len(near) - 100, 50), 100).any()
+    assert sample_rest_clips(near, scene, 16) is None
+
+
+def test_a_robot_unlike_its_model_gets_its_payload_and_robot_box_friction(tmp_path, heavy_robot_log):
+    """load_problem models the payload it finds, says so, and frees the robot-box friction by default;
+    a robot that is its model keeps the box's parameters only."""
+    path = write_mcap(tmp_path / "heavy.mcap", replace(heavy_robot_log, meta={}))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        problem = load_problem(str(path), nthread=2)
+    text = " ".join(str(w.message) for w in caught)
+    assert "payload" in text and "robot_box_friction is freed" in text
+    assert problem.scene.config.trunk_payload == pytest.approx(0.6, abs=0.03)
+    assert problem.space.free == DEFAULT_FREE + ("robot_box_friction",)
+    assert problem.robot_differs == ("payload",)
+    assert problem.traj.meta["sensors"]["payload"]["applied"] is True
+    # asked for explicitly, the free set is the caller's
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert load_problem(str(path), params=("box_mass",), nthread=2).space.free == ("box_mass",)
+    plain = write_mcap(tmp_path / "plain.mcap", replace(_lunge_log(box_xy=FAR_BOX), meta={}))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        nominal = load_problem(str(plain), nthread=2)
+    assert nominal.space.free == DEFAULT_FREE and nominal.robot_differs == ()
+    assert abs(nominal.scene.config.trunk_payload) < 0.03
+
+
+def test_a_scene_payload_is_trunk_mass_and_the_free_parameter_replaces_it():
+    plain, heavy = Scene(SceneConfig()), Scene(SceneConfig(trunk_payload=0.5))
+    trunk = plain.model.body("trunk").id
+    assert heavy.model.body_mass[trunk] == pytest.approx(plain.model.body_mass[trunk] + 0.5)
+    np.testing.assert_allclose(heavy.model.body_inertia[trunk], plain.model.body_inertia[trunk])
+    assert SceneConfig.from_dict(heavy.config.to_dict()).trunk_payload == 0.5
+    space = ParameterSpace(heavy, free=("trunk_payload",))
+    assert space.mean0[0] == pytest.approx(0.5)  # the prior is the scene's payload
+    m = heavy.model
+    space.write(m, np.array([0.8]))
+    assert m.body_mass[trunk] == pytest.approx(plain.model.body_mass[trunk] + 0.8)
+    with pytest.raises(AmheError, match="trunk payload"):
+        Scene(SceneConfig(trunk_payload=-10.0))
 
 
 def test_coverage_counts_intervals_that_hold_the_truth():

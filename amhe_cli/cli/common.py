@@ -60,7 +60,9 @@ def identify_options(f):
     opts = [
         click.option("--params", default=None, metavar="NAMES",
                      help=f"Free parameters, comma-separated, from: {', '.join(PARAMETERS)}. "
-                          "Default: box_mass,box_inertia,box_friction."),
+                          "Default: box_mass,box_inertia,box_friction; identify adds robot_box_friction where "
+                          "the log's robot is not its model (gains fitted from its efforts, or a trunk payload "
+                          "fitted where the box rests)."),
         click.option("--prior", type=click.Path(), default=None,
                      help="Belief YAML to start from (its values and stds). Default: " + nominal_prior_text() + "."),
         click.option("--clips", "n_clips", default=32, show_default=True, type=click.IntRange(1, 10000),
@@ -317,6 +319,14 @@ def sensor_lines(meta: dict) -> list[str]:
         kp, kd = np.asarray(gains["kp"]), np.asarray(gains["kd"])
         lines.append(f"servo gains fitted from the efforts: Kp {kp.min():.3g}–{kp.max():.3g}, Kd {kd.min():.3g}–{kd.max():.3g}"
                      f" ({'used instead of the logged ones' if gains['used'] == 'fitted' else 'agree with the log'})")
+    payload = sens.get("payload")
+    if payload:
+        if payload.get("trunk_payload_kg") is None:
+            lines.append(f"trunk payload: {payload['note']}")
+        else:
+            lines.append(f"trunk payload fitted on {payload['clips']} clips where the box rests: "
+                         f"{payload['trunk_payload_kg']:+.3f} ± {payload['std_kg']:.3f} kg "
+                         f"({'modelled' if payload['applied'] else 'not told from none: the robot is its model'})")
     return lines
 
 

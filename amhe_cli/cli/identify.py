@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import click
@@ -44,8 +45,9 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
     smooth = parse_smooth(smooth)
     out_path, plot_path = check_outputs(force, ("--out", default_output(out, log, ".belief.yaml")),
                                         ("--plot", check_png_name(plot)))
-    problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params, prior=prior,
-                           box_size=parse_box_size(box_size), smooth=smooth)
+    problem = load_problem(log, topics=parse_topics(topics, map_file), params=settings.params if params else None,
+                           prior=prior, box_size=parse_box_size(box_size), smooth=smooth, nthread=threads)
+    settings = replace(settings, params=problem.space.free)
     from amhe_cli.io.truth import metadata_truth
     truth = metadata_truth(problem.traj)
     result = run_identify(problem, settings, quiet or as_json, threads)

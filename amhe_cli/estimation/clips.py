@@ -151,23 +151,8 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
         AmheError: no observed stretch is long enough for one clip.
     """
     rng = rng or np.random.default_rng(0)
-    lo, hi = (int(round(h / traj.dt)) for h in horizon_range)
-    lo = max(lo, 1)
-    hi = max(hi, lo)
-    valid = traj.valid()
-    n = len(traj)
-    # a start s is usable if samples s..s+hi are all valid
-    bad = np.concatenate([[0], np.cumsum(~valid)])
-    usable = np.zeros(n, dtype=bool)
-    last = n - hi - 1
-    if last > 0:
-        s = np.arange(last)
-        usable[:last] = (bad[s + hi + 1] - bad[s]) == 0
-    if t_range is not None:
-        usable &= (traj.t >= t_range[0]) & (traj.t + hi * traj.dt <= t_range[1])
-    if not usable.any():
-        raise AmheError(f"no stretch of the log is {hi * traj.dt:.2f} s long without gaps: "
-                        "expected at least one clip's worth of continuous data")
+    lo, hi = _horizon_steps(traj, horizon_range)
+    usable = _usable_starts(traj, hi, t_range)
     score = excitation(traj, hi)
     active = usable & (score > min_speed)
     if min_travel > 0:
@@ -185,6 +170,83 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     starts = np.sort(rng.choice(pool, size=k, replace=False, p=weight / weight.sum()))
     horizons = rng.integers(lo, hi + 1, size=k)
     return make_clips(traj, scene, starts, horizons)
+
+
+def sample_rest_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
+                      rng: np.random.Generator | None = None, t_range=None) -> Clips | None:
+    """Draw up to ``n_clips`` clips in which the box rests: the robot's own motion, for robot-side parameters.
+
+    A start counts when the box goes no further over the longest horizon than
+    pose noise alone moves a resting box (:func:`rest_travel`, at least
+    :data:`REST_FLOOR`) and the robot stays out of the box's reach
+    (:func:`robot_box_clear`): a robot leaning on a box that does not move
+    would otherwise be read with the prior's box, which may slide in the
+    rollout (``mass_switch``, a robot that is its model, read a payload of
+    0.41 ± 0.01 kg without this). Starts are drawn uniformly without
+    replacement; horizons uniform in ``horizon_range`` [s].
+
+    Returns:
+        the clips, or None where no start qualifies.
+    Raises:
+        AmheError: no observed stretch is long enough for one clip.
+    """
+    rng = rng or np.random.default_rng(0)
+    lo, hi = _horizon_steps(traj, horizon_range)
+    pool = np.flatnonzero(_usable_starts(traj, hi, t_range))
+    pool = pool[box_travel(traj, pool, np.full(pool.size, hi)) <= max(rest_travel(traj), REST_FLOOR)]
+    pool = pool[robot_box_clear(traj, scene, pool, hi)]
+    if pool.size == 0:
+        return None
+    k = min(n_clips, pool.size)
+    starts = np.sort(rng.choice(pool, size=k, replace=False))
+    return make_clips(traj, scene, starts, rng.integers(lo, hi + 1, size=k))
+
+
+#: The farthest any part of the Go1 reaches from its trunk origin in the horizontal plane [m]: the head
+#: plate at 0.28 m, a swinging front foot a little beyond, and a margin.
+ROBOT_REACH = 0.4
+
+
+def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
+    """(N,) bool: the robot cannot touch the box anywhere in the clips from ``starts`` over ``hi`` samples.
+
+    The horizontal distance of the trunk origin from the box's centre stays above
+    :data:`ROBOT_REACH` plus half the box's horizontal diagonal at every 10th sample.
+    """
+    starts = np.asarray(starts, dtype=int)
+    if starts.size == 0:
+        return np.zeros(0, dtype=bool)
+    clear = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
+    gap = np.linalg.norm(traj.base_pos[:, :2] - traj.box_pos[:, :2], axis=1)
+    offsets = np.unique(np.r_[np.arange(0, hi + 1, 10), hi])
+    return (gap[starts[:, None] + offsets[None]] > clear).all(axis=1)
+
+
+def _horizon_steps(traj: Trajectory, horizon_range) -> tuple[int, int]:
+    """(lo, hi) clip horizon [model steps] of a ``(min, max)`` range [s]."""
+    lo, hi = (int(round(h / traj.dt)) for h in horizon_range)
+    lo = max(lo, 1)
+    return lo, max(hi, lo)
+
+
+def _usable_starts(traj: Trajectory, hi: int, t_range=None) -> np.ndarray:
+    """(T,) bool: starts ``s`` whose samples ``s..s+hi`` are all observed (and inside ``t_range`` [s]).
+
+    Raises:
+        AmheError: there is none.
+    """
+    bad = np.concatenate([[0], np.cumsum(~traj.valid())])
+    usable = np.zeros(len(traj), dtype=bool)
+    last = len(traj) - hi - 1
+    if last > 0:
+        s = np.arange(last)
+        usable[:last] = (bad[s + hi + 1] - bad[s]) == 0
+    if t_range is not None:
+        usable &= (traj.t >= t_range[0]) & (traj.t + hi * traj.dt <= t_range[1])
+    if not usable.any():
+        raise AmheError(f"no stretch of the log is {hi * traj.dt:.2f} s long without gaps: "
+                        "expected at least one clip's worth of continuous data")
+    return usable
 
 
 def choose_informative(info: np.ndarray, n_clips: int, rng: np.random.Generator) -> np.ndarray:
@@ -226,6 +288,10 @@ def box_travel(traj: Trajectory, starts: np.ndarray, horizons: np.ndarray) -> np
     shift = np.linalg.norm(traj.box_pos[b, :2] - traj.box_pos[a, :2], axis=1)
     return shift + LEVER * np.linalg.norm(quat_relative_rotvec(traj.box_quat[a], traj.box_quat[b]), axis=1)
 
+
+#: A box that goes no further than this over a clip counts as at rest on a clean log [m] (2 mm in 0.2 s:
+#: 1 cm/s, below the 2 cm/s that counts as moving).
+REST_FLOOR = 0.002
 
 #: A clip counts as the box at rest unless the box went this many standard deviations of the pose noise
 #: further than a resting box appears to (:func:`rest_travel`).
