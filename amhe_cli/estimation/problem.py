@@ -145,7 +145,7 @@ def _payload_from_rest(traj: Trajectory, config: SceneConfig, nthread: int | Non
     sensors = traj.meta.setdefault("sensors", {})
     if fit is None:
         sensors["payload"] = {"trunk_payload_kg": None, "note": f"fewer than {PAYLOAD_MIN_CLIPS} clips where the "
-                              "box rests: the robot is taken as its model"}
+                              "box rests out of the robot's reach: the robot is taken as its model"}
         return config
     told = abs(fit.value) > max(PAYLOAD_SIGMAS * fit.std, PAYLOAD_MIN_KG)
     sensors["payload"] = {**fit.to_dict(), "applied": told}
