@@ -5,12 +5,12 @@ solver. This script takes ``--clips`` clips of a log (the same draw as ``amhe
 identify``), rolls every clip out with the model as shipped and with one option
 changed at a time, and prints per option:
 
-* the time ratio against the model as shipped, through a persistent
-  ``mujoco.rollout.Rollout`` pool on ``--threads`` threads (the option and the
-  shipped model alternate over ``--repeats`` timed passes; medians);
+* the time ratio against the model as shipped, through the project's rollout
+  pool (``amhe_cli.model.rollout.RolloutPool``, the cost module's) on
+  ``--threads`` threads (the option and the shipped model alternate over
+  ``--repeats`` timed passes; medians);
 * the largest deviation of the box's and the trunk's positions at the clips'
-  ends [mm] — 0 means the option only changes how the same answer is computed;
-* mean solver iterations per step.
+  ends [mm] — 0 means the option only changes how the same answer is computed.
 
 A one-thread pass with MuJoCo's timers splits a step of the shipped model into
 its stages first (which is why the solver options are the ones worth trying).
@@ -31,13 +31,12 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from mujoco import rollout as mj_rollout
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from amhe_cli.estimation.clips import sample_clips  # noqa: E402
 from amhe_cli.estimation.problem import example_logs, load_problem  # noqa: E402
-from amhe_cli.model.rollout import default_threads  # noqa: E402
+from amhe_cli.model.rollout import RolloutPool, default_threads  # noqa: E402
 
 #: (label, option field, value) tried one at a time against the model as shipped.
 VARIANTS = [
@@ -66,31 +65,24 @@ def stage_times(model: mujoco.MjModel, clips) -> dict[str, float]:
 
 
 class ClipRollouts:
-    """Every clip rolled out once, grouped by horizon, through one persistent pool."""
+    """Every clip rolled out once through the project's rollout pool (:class:`~amhe_cli.model.rollout.RolloutPool`),
+    one call per horizon group, as the cost module makes them."""
 
-    def __init__(self, clips, nthread: int):
+    def __init__(self, clips, model: mujoco.MjModel, nthread: int):
         self.clips = clips
         self.groups = [np.flatnonzero(clips.horizon == h) for h in np.unique(clips.horizon)]
-        self.pool = mj_rollout.Rollout(nthread=nthread)
-        self.nthread = nthread
+        self.pool = RolloutPool(model, nthread=nthread)
 
-    def run(self, model: mujoco.MjModel) -> tuple[float, np.ndarray, float]:
-        """(wall time [s], (N_c, nstate) final states, mean solver iterations of one thread's data)."""
-        datas = [mujoco.MjData(model) for _ in range(self.nthread)]
-        nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        final = np.empty((len(self.clips), nstate))
-        work = []
+    def run(self, model: mujoco.MjModel) -> tuple[float, np.ndarray]:
+        """(wall time [s], (N_c, nstate) final states) of ``model`` (sizes as the pool's template)."""
+        final = np.empty((len(self.clips), self.pool.nstate))
+        t0 = time.perf_counter()
         for idx in self.groups:
             h = int(self.clips.horizon[idx[0]])
-            work.append((idx, h, np.ascontiguousarray(self.clips.initial_state[idx]),
-                         np.ascontiguousarray(self.clips.control[idx, :h]), np.empty((idx.size, h, nstate))))
-        t0 = time.perf_counter()
-        for idx, h, init, ctrl, state in work:
-            self.pool.rollout([model] * idx.size, datas, init, ctrl, nstep=h, state=state)
-        wall = time.perf_counter() - t0
-        for idx, h, _, _, state in work:
+            state = self.pool.rollout([model] * idx.size, self.clips.initial_state[idx],
+                                      self.clips.control[idx, :h], nstep=h)
             final[idx] = state[:, -1]
-        return wall, final, float(datas[0].solver_niter[0])
+        return time.perf_counter() - t0, final
 
     def close(self) -> None:
         self.pool.close()
@@ -116,7 +108,7 @@ def main(argv=None) -> None:
                                                      if k in ("step", "position", "velocity", "constraint",
                                                               "pos_collision", "actuation", "advance")))
     nthread = args.threads or default_threads()
-    roll = ClipRollouts(clips, nthread)
+    roll = ClipRollouts(clips, shipped, nthread)
     box, base = scene.box_qpos[:3], np.arange(1, 4)  # state row 0 is time; qpos follows
     try:
         roll.run(shipped)  # warm-up
@@ -126,9 +118,9 @@ def main(argv=None) -> None:
             setattr(variant.opt, name, value)
             t_ship, t_var = [], []
             for _ in range(args.repeats):
-                w, ref, _ = roll.run(shipped)
+                w, ref = roll.run(shipped)
                 t_ship.append(w)
-                w, x, _ = roll.run(variant)
+                w, x = roll.run(variant)
                 t_var.append(w)
             dev_box = np.abs(x[:, 1 + box] - ref[:, 1 + box]).max() * 1e3
             dev_base = np.abs(x[:, base] - ref[:, base]).max() * 1e3
