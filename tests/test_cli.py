@@ -16,8 +16,9 @@ from amhe_cli.estimation.problem import example_logs
 from amhe_cli.control.probing import simulate_probe
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
-# small but not degenerate: 8 clips x 12 generations misses by up to 10 % (benchmarks/identify_accuracy.py)
-FAST = ["--clips", "12", "--popsize", "10", "--generations", "20", "--params", "box_mass,box_friction", "-q"]
+# small but not degenerate: 8 clips x 12 generations misses by up to 10 % (benchmarks/identify_accuracy.py);
+# 18 of a clean log's 0.07-0.13 s clips are the simulated time of 12 of 0.1-0.2 s
+FAST = ["--clips", "18", "--popsize", "10", "--generations", "20", "--params", "box_mass,box_friction", "-q"]
 #: CLI tests check plumbing; accuracy at 5 % is tests/test_core.py's and the benchmark's job
 MASS_TOL = 0.10
 
@@ -98,6 +99,9 @@ def test_identify_json_belief_and_overwrite(tmp_path, sim_log):
     belief = yaml.safe_load(out.read_text())
     assert belief["parameters"]["box_mass"]["value"] == pytest.approx(result["estimate"]["box_mass"])
     assert belief["provenance"]["sha256"]
+    # the clips that ran: --clips as given, the horizon by the clean log's plan (identify.clip_plan)
+    assert belief["provenance"]["settings"]["n_clips"] == 18
+    assert belief["provenance"]["settings"]["horizon"] == [0.07, 0.13]
     # an existing belief is never overwritten without --force
     before = out.read_text()
     one_line_error(amhe("identify", sim_log, *FAST, "--out", out), "--force")

@@ -326,6 +326,20 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
     assert long_clips.horizon.max() == want > short_clips.horizon.max() == int(round(0.1 / read.dt))
 
 
+def test_identify_draws_short_clips_on_a_clean_log_and_long_ones_where_velocity_is_noisy(tmp_path):
+    """identify.clip_plan: 48 clips of 0.07–0.13 s where the box's velocity holds no measurement noise (a
+    push's chaos grows with the horizon), 32 of 0.1–0.2 s where it does (a longer clip outweighs its noisy
+    start); the same simulated time per candidate either way, and what a user gives wins."""
+    from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, NOISY_LOG_CLIPS, clip_plan
+    _, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
+    assert clip_plan(clean) == CLEAN_LOG_CLIPS == (48, (0.07, 0.13))
+    assert clip_plan(read) == NOISY_LOG_CLIPS == (32, (0.1, 0.2))
+    assert 48 * 0.1 == pytest.approx(32 * 0.15)  # mean horizon × clips: the same rollout time
+    assert clip_plan(read, 12, (0.2, 0.3)) == (12, (0.2, 0.3))
+    assert clip_plan(clean, None, (0.2, 0.3)) == (48, (0.2, 0.3))
+    assert clip_plan(read, 20) == (20, (0.1, 0.2))
+
+
 def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():
     """The online MHE's window of a Go1 run: the box's velocity from its mocap samples (smoothed as a log's
     are), not the estimator's lagging low-pass; the noise measured and in W_x, as mhe-replay would see it."""

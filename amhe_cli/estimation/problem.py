@@ -108,6 +108,7 @@ class Problem:
 #: worst 8.4, in a run whose payload read 0.497 kg — with it free; −9.3 ± 8.4 %, worst −19.0, with it at the
 #: model's 0.6 where the truth was 0.8; its noisy twin's worst −25.4 % -> +11.9 %). Where the robot is its
 #: model it stays fixed: freed on noisy_b it widened the spread (+2.1 ± 8.1 % against +3.0 ± 6.5 %).
+#: (With the clean log's shorter clips, identify.clip_plan, mismatch_b reads +2.6 ± 2.9 %, worst 7.6, with it free.)
 ROBOT_DIFFERS_FREE = ("robot_box_friction",)
 
 #: A fitted payload is modelled where it lies this many σ from zero (else the log cannot tell it from
