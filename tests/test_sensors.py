@@ -230,6 +230,7 @@ def test_a_robot_unlike_its_model_gets_its_payload_and_robot_box_friction(tmp_pa
     assert problem.space.free == DEFAULT_FREE + ("robot_box_friction",)
     assert problem.robot_differs == ("payload",)
     assert problem.traj.meta["sensors"]["payload"]["applied"] is True
+    assert problem.traj.meta["sensors"]["robot_differs"] == ["payload"]  # identify then draws clips by motion
     # asked for explicitly, the free set is the caller's
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -239,6 +240,7 @@ def test_a_robot_unlike_its_model_gets_its_payload_and_robot_box_friction(tmp_pa
         warnings.simplefilter("ignore")
         nominal = load_problem(str(plain), nthread=2)
     assert nominal.space.free == DEFAULT_FREE and nominal.robot_differs == ()
+    assert nominal.traj.meta["sensors"]["robot_differs"] == []
     assert abs(nominal.scene.config.trunk_payload) < 0.03
 
 
@@ -326,18 +328,22 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
     assert long_clips.horizon.max() == want > short_clips.horizon.max() == int(round(0.1 / read.dt))
 
 
-def test_identify_draws_short_clips_on_a_clean_log_and_long_ones_where_velocity_is_noisy(tmp_path):
+def test_identify_plans_its_clips_by_the_logs_noise_and_robot(tmp_path):
     """identify.clip_plan: 48 clips of 0.07–0.13 s where the box's velocity holds no measurement noise (a
     push's chaos grows with the horizon), 32 of 0.1–0.2 s where it does (a longer clip outweighs its noisy
-    start); the same simulated time per candidate either way, and what a user gives wins."""
-    from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, NOISY_LOG_CLIPS, clip_plan
+    start), the same simulated time either way; chosen by information where the robot is taken as its
+    model, by box motion where the reading found it is not; what a user gives wins."""
+    from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, INFORMATION_CANDIDATES, NOISY_LOG_CLIPS, clip_plan
     _, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
-    assert clip_plan(clean) == CLEAN_LOG_CLIPS == (48, (0.07, 0.13))
-    assert clip_plan(read) == NOISY_LOG_CLIPS == (32, (0.1, 0.2))
-    assert 48 * 0.1 == pytest.approx(32 * 0.15)  # mean horizon × clips: the same rollout time
-    assert clip_plan(read, 12, (0.2, 0.3)) == (12, (0.2, 0.3))
-    assert clip_plan(clean, None, (0.2, 0.3)) == (48, (0.2, 0.3))
-    assert clip_plan(read, 20) == (20, (0.1, 0.2))
+    assert clip_plan(clean) == (*CLEAN_LOG_CLIPS, INFORMATION_CANDIDATES) == (48, (0.07, 0.13), 4)
+    assert clip_plan(read) == (*NOISY_LOG_CLIPS, INFORMATION_CANDIDATES) == (32, (0.1, 0.2), 4)
+    assert 48 * 0.1 == pytest.approx(32 * 0.15)  # clips × mean horizon: the same rollout time
+    assert clip_plan(read, 12, (0.2, 0.3), 1) == (12, (0.2, 0.3), 1)
+    assert clip_plan(clean, None, (0.2, 0.3)) == (48, (0.2, 0.3), 4)
+    assert clip_plan(read, 20) == (20, (0.1, 0.2), 4)
+    read.meta["sensors"]["robot_differs"] = ["payload"]
+    assert clip_plan(read) == (32, (0.1, 0.2), 1)
+    assert clip_plan(read, candidates=3)[2] == 3
 
 
 def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():

@@ -68,12 +68,11 @@ def identify_options(f):
         click.option("--clips", "n_clips", default=None, type=click.IntRange(1, 10000),
                      help="Number of clips N_c. Default: 48 on a log whose box velocity holds no measurement "
                           "noise, 32 where it does (with --horizon's default, the same simulated time)."),
-        click.option("--candidates", default=IdentifySettings.candidates, show_default=True,
-                     type=click.IntRange(1, 64),
+        click.option("--candidates", default=None, type=click.IntRange(1, 64),
                      help="Above 1: draw this many times N_c clips where the box moves and keep the N_c that "
-                          "inform the free parameters most (half the seed-to-seed spread where the model "
-                          "matches the log; on a robot unlike its model it weighs the bumps where the "
-                          "mismatch acts — free robot_box_friction with it)."),
+                          "inform the free parameters most; 1: the draw by box motion alone. Default: 4 where "
+                          "the log's robot is taken as its model, 1 where it is found not to be (information "
+                          "read at a wrong model points at the bumps, where the mismatch acts)."),
         click.option("--horizon", default=None, metavar="MIN,MAX",
                      help="Clip horizon range [s], drawn uniformly. Default: 0.07,0.13 on a log whose box "
                           "velocity holds no measurement noise (a push is chaotic in the parameters, more so "
@@ -96,7 +95,7 @@ def identify_options(f):
 
 
 def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed,
-                  t_range=None, candidates: int = 1) -> IdentifySettings:
+                  t_range=None, candidates: int | None = None) -> IdentifySettings:
     """:class:`IdentifySettings` from the shared options (validated)."""
     hr = parse_range(horizon, "--horizon") if horizon is not None else None
     if hr is not None and hr[0] <= 0:

@@ -139,7 +139,7 @@ def _assess_log(log, chosen, free, prior, box_size, smooth, n_clips, horizon, se
         if str(w.message) not in info.warnings:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
     from amhe_cli.estimation.identify import clip_plan
-    n_clips, horizon = clip_plan(problem.traj, n_clips, horizon)
+    n_clips, horizon, _ = clip_plan(problem.traj, n_clips, horizon)
     curv = assess(problem.traj, problem.scene, problem.space, n_clips=n_clips, horizon=horizon, seed=seed,
                   nthread=threads)
     sp = problem.space

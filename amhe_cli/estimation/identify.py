@@ -98,22 +98,12 @@ class IdentifySettings:
             over CMA-ES seeds, ± 5–6 % with the clips drawn anew; see ``candidates``.)
         candidates: > 1 chooses the clips by their information about the free
             parameters at the prior (:func:`~amhe_cli.estimation.clips.choose_informative`)
-            among this many times ``n_clips`` drawn by box motion; 1 (default)
-            keeps the draw by box motion alone. *Measured* (8 seeds per log,
-            ``candidates`` 4 against 1, mass error mean ± std): the spread
-            halves or better where the model matches the log — ``const_a``
-            +0.2 ± 0.4 % against +0.8 ± 0.9 %, ``noisy_b`` +4.0 ± 3.5 % (worst
-            8.4) against +3.0 ± 6.5 % (worst 14.3) — but on a robot unlike its
-            model the informative clips are the bumps, where the mismatch acts:
-            ``mismatch_b`` −16.7 ± 7.9 % against −4.7 ± 5.2 % (with
-            ``robot_box_friction`` freed +8.8 ± 2.4 % against +9.9 ± 3.1 %), a
-            noisy mismatched log +14.0 ± 8.3 % against −4.0 ± 9.9 %. Against
-            information-chosen clips with ``robot_box_friction`` freed, the draw
-            by motion had the lower rms mass error on four of six logs, so it
-            stays the default (docs/reference.md#identification).
-            The pre-pass costs ``d + 1`` rollouts of every candidate clip and
-            the chosen clips are longer and richer in contacts: 1.1–1.2× the
-            wall time.
+            among this many times ``n_clips`` drawn by box motion; 1 keeps the
+            draw by box motion alone; None: :func:`clip_plan` chooses (4 where
+            the log's robot is taken as its model, 1 where it is found not to
+            be). The pre-pass costs ``d + 1`` rollouts of every candidate clip
+            and the chosen clips are richer in contacts: 1.06× the wall time on
+            ``const_a`` (2 cores), 1.1–1.2× on 16.
         sigma0: initial CMA-ES step in prior-σ units.
         tolx: stop when every coordinate's CMA-ES step is below this, in
             prior-σ units (3e-3: 9 g of mass, 0.0015 of friction at the
@@ -132,7 +122,7 @@ class IdentifySettings:
     horizon: tuple | None = None
     popsize: int = 12
     max_gen: int = 24
-    candidates: int = 1
+    candidates: int | None = None
     sigma0: float = 0.3
     tolx: float = 3e-3
     prior_weight: float = 1.0
@@ -215,34 +205,58 @@ NOISY_LOG_CLIPS = (32, (0.1, 0.2))
 #: Clips where it holds none (a clean or simulated log): shorter, and as many more as keep the simulated
 #: time per candidate the same (48 × 0.1 s against 32 × 0.15 s on average).
 CLEAN_LOG_CLIPS = (48, (0.07, 0.13))
+#: Candidates per clip for the information choice where the log's robot is taken as its model.
+INFORMATION_CANDIDATES = 4
 
 
-def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | None = None) -> tuple[int, tuple]:
-    """How many clips, and how long, for ``traj``: ``(N_c, (min, max) [s])``; a given value wins.
+def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | None = None,
+              candidates: int | None = None) -> tuple[int, tuple, int]:
+    """How many clips, how long and how chosen for ``traj``: ``(N_c, (min, max) [s], candidates)``.
 
-    The horizon trades two errors. Each clip starts from the recorded state, so
-    an error σ_v in the box's initial velocity moves its rolled-out position by
-    σ_v·t; the longer the clip, the more its position errors outweigh that
-    start. But a push is chaotic in the parameters (a foot meets the box one
-    step sooner or later, the gait's stance shifts), and that roughness of the
-    cost grows with the horizon. So a log whose box velocity holds measurement
-    noise (:func:`~amhe_cli.io.smoothing.velocity_noise` > 0: pose noise read
-    through the smoother) gets :data:`NOISY_LOG_CLIPS`, 32 clips of 0.1–0.2 s,
-    and one without gets :data:`CLEAN_LOG_CLIPS`, 48 of 0.07–0.13 s (the same
-    simulated time per candidate, so the same wall time).
+    A value given wins; None is chosen here from what the log's reading found
+    (``traj.meta["sensors"]``).
+
+    **Length.** The horizon trades two errors. Each clip starts from the
+    recorded state, so an error σ_v in the box's initial velocity moves its
+    rolled-out position by σ_v·t; the longer the clip, the more its position
+    errors outweigh that start. But a push is chaotic in the parameters (a
+    foot meets the box one step sooner or later, the gait's stance shifts),
+    and that roughness of the cost grows with the horizon. So a log whose box
+    velocity holds measurement noise (:func:`~amhe_cli.io.smoothing.velocity_noise`
+    > 0: pose noise read through the smoother) gets :data:`NOISY_LOG_CLIPS`,
+    32 clips of 0.1–0.2 s, and one without gets :data:`CLEAN_LOG_CLIPS`, 48 of
+    0.07–0.13 s (the same simulated time per candidate, so the same wall time).
+
+    **Choice.** Where the robot is taken as its model the clips are chosen by
+    their information about the free parameters (:data:`INFORMATION_CANDIDATES`
+    times as many drawn by box motion, :func:`~amhe_cli.estimation.clips.choose_informative`):
+    a handful of clips carries most of the information, and a draw by motion
+    differs from seed to seed in which it holds. Where the log's reading found
+    the robot unlike its model (``sensors["robot_differs"]``: gains fitted from
+    its efforts, or a payload; :func:`~amhe_cli.estimation.problem.load_problem`)
+    the draw by motion stays: information read at a wrong model points at the
+    bumps, where the mismatch acts.
 
     *Measured* (8 seeds per log, one thread each, mass error mean ± std
-    (worst), 48 × 0.07–0.13 s against 32 × 0.1–0.2 s):
+    (worst)):
 
-    - ``mismatch_b`` (clean, a robot unlike its model) +2.6 ± 2.9 % (7.6)
-      against +6.2 ± 5.2 % (12.3), μ within 0.008 against 0.036;
-    - ``const_a`` +0.6 ± 1.1 % (2.3) against +0.8 ± 0.9 %; the bundled
-      examples +2.5 ± 1.0 % (4.5) and +0.7 ± 1.0 % (2.5) against +2.0 ± 1.5 %
-      (4.2) and +1.1 ± 0.9 % (2.9);
-    - but on the noisy logs the short clips lose: ``noisy_b`` +4.2 ± 9.4 %
-      (14.4) against +3.1 ± 6.5 % (14.3), the noisy mismatched log
-      +6.0 ± 13.2 % (23.4) against +6.0 ± 5.6 % (11.9). 64 clips of
-      0.05–0.1 s: ``mismatch_b`` +4.0 ± 3.2 % (8.7), ``noisy_b`` worst 16.9 %.
+    - clean logs, 48 × 0.07–0.13 s against 32 × 0.1–0.2 s (by motion):
+      ``mismatch_b`` (a robot unlike its model) +2.6 ± 2.9 % (7.6) against
+      +6.2 ± 5.2 % (12.3), μ within 0.008 against 0.036; ``const_a``
+      +0.6 ± 1.1 % (2.3) against +0.8 ± 0.9 %; the bundled examples
+      +2.5 ± 1.0 % (4.5) and +0.7 ± 1.0 % (2.5) against +2.0 ± 1.5 % (4.2)
+      and +1.1 ± 0.9 % (2.9). On the noisy logs the short clips lose:
+      ``noisy_b`` +4.2 ± 9.4 % (14.4) against +3.1 ± 6.5 % (14.3), the noisy
+      mismatched log +6.0 ± 13.2 % (23.4) against +6.0 ± 5.6 % (11.9); 64
+      clips of 0.05–0.1 s: ``mismatch_b`` +4.0 ± 3.2 % (8.7), ``noisy_b``
+      worst 16.9 %; 27 of 0.12–0.24 s: ``noisy_b`` −16.0 ± 40.0 %.
+    - chosen by information (robot as its model): ``noisy_b`` +4.0 ± 3.5 %
+      (8.4, μ 0.040) against +3.1 ± 6.5 % (14.3); ``const_a`` −0.3 ± 0.4 %
+      (0.7); the examples +2.0 ± 1.3 % (4.0) and +0.8 ± 1.0 % (2.4). On the
+      robots unlike their model: ``mismatch_b`` +3.6 ± 1.7 % (6.4, long
+      clips), but the noisy mismatched log +10.5 ± 9.0 % (31.5) against
+      +6.0 ± 5.6 % (11.9) by motion; a mixture (weights ¾ information, ¼
+      uniform) +3.3 ± 8.7 % (14.1), and ``noisy_b`` +3.8 ± 3.1 % (7.9).
 
     Per-clip cost along the line from an estimate to the truth on
     ``mismatch_b`` (25 points) varied most, up to 5× its range in total
@@ -250,7 +264,9 @@ def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | Non
     """
     noisy = velocity_noise(traj.meta, "box", traj.dt) > 0
     plan_n, plan_h = NOISY_LOG_CLIPS if noisy else CLEAN_LOG_CLIPS
-    return (plan_n if n_clips is None else int(n_clips)), (plan_h if horizon is None else tuple(horizon))
+    plan_c = 1 if traj.meta.get("sensors", {}).get("robot_differs") else INFORMATION_CANDIDATES
+    return ((plan_n if n_clips is None else int(n_clips)), (plan_h if horizon is None else tuple(horizon)),
+            (plan_c if candidates is None else int(candidates)))
 
 
 def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: IdentifySettings,
@@ -269,8 +285,9 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         AmheError: the log has no usable clip.
     """
     t0 = time.perf_counter()
-    n_clips, horizon = clip_plan(traj, settings.n_clips, settings.horizon)
-    settings = replace(settings, n_clips=n_clips, horizon=horizon)  # the belief's provenance says what ran
+    n_clips, horizon, candidates = clip_plan(traj, settings.n_clips, settings.horizon, settings.candidates)
+    # the belief's provenance says what ran
+    settings = replace(settings, n_clips=n_clips, horizon=horizon, candidates=candidates)
     rng = np.random.default_rng(settings.seed)
     by_information = settings.candidates > 1
     # candidates for an information choice leave out a box that only pose noise moves: its noisy start

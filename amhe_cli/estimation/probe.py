@@ -30,7 +30,7 @@ def assess(traj: Trajectory, scene: Scene, space: ParameterSpace, n_clips: int |
     would draw them, :func:`~amhe_cli.estimation.identify.clip_plan`): Fisher
     information, implied standard deviations (prior included) and correlations.
     """
-    n_clips, horizon = clip_plan(traj, n_clips, horizon)
+    n_clips, horizon, _ = clip_plan(traj, n_clips, horizon)
     clips = sample_clips(traj, scene, n_clips, horizon, rng=np.random.default_rng(seed))
     with RolloutCost(scene, space, clips, nthread=nthread) as cost:
         return curvature(cost, space.mean0, at_estimate=False)

@@ -211,6 +211,7 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
     differs = tuple(why for why, found in (
         ("servo gains", traj.meta.get("sensors", {}).get("gains", {}).get("used") == "fitted"),
         ("payload", abs(config.trunk_payload) >= PAYLOAD_WARN_KG)) if found)
+    traj.meta.setdefault("sensors", {})["robot_differs"] = list(differs)  # identify.clip_plan reads it
     if params is None:
         params = DEFAULT_FREE
         if differs:
