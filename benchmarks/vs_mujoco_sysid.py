@@ -164,7 +164,7 @@ def counting_amhe_rollouts():
         ident.RolloutCost = base
 
 
-def run_amhe(problem, free, n_clips: int, seed: int, threads: int):
+def run_amhe(problem, free, n_clips: int | None, seed: int, threads: int):
     from amhe_cli.estimation.identify import IdentifySettings, identify
     settings = IdentifySettings(params=free, n_clips=n_clips, seed=seed)
 
@@ -415,7 +415,8 @@ def main() -> None:
     ap.add_argument("--params", default="box_mass,box_friction",
                     help=f"free parameters, a comma-separated subset of {', '.join(SUPPORTED)} "
                          "(box_mass and box_friction must be included)")
-    ap.add_argument("--clips", type=int, default=32)
+    ap.add_argument("--clips", type=int, default=None,
+                    help="clips N_c (default: as amhe identify plans them for the log, identify.clip_plan)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--sysid-eps", type=float, default=None,
@@ -442,6 +443,10 @@ def main() -> None:
     if len(truths) != len(logs):
         ap.error(f"--truth: give one per log ({len(logs)}) or 'auto'")
 
+    from mujoco import sysid as _sysid_module
+    if not hasattr(_sysid_module, "ParameterDict"):  # the package is there, its extra's dependencies are not
+        sys.exit("vs_mujoco_sysid: mujoco.sysid is not installed with its dependencies: expected "
+                 "pip install '.[sysid]' (mujoco[sysid] >= 4.0)")
     rows, notes = [], []
     t_all = time.perf_counter()
     for log, tspec in zip(logs, truths):
@@ -454,7 +459,7 @@ def main() -> None:
         problem = load_problem(log, params=free)
         truth, where = find_truth(log, tspec, problem.traj)
         log_progress(f"[{name}] truth ({where}): {truth}")
-        log_progress(f"[{name}] amhe identify: {a.clips} clips, seed {a.seed}, {a.threads} threads")
+        log_progress(f"[{name}] amhe identify: {a.clips or 'planned'} clips, seed {a.seed}, {a.threads} threads")
         result, amhe_steps, weights, prior_weight = run_amhe(problem, free, a.clips, a.seed, a.threads)
         s = result.summary()
         log_progress(f"[{name}]   amhe: {s['estimate']} ± {s['std']} in {s['wall_time_s']:.1f} s "
