@@ -230,7 +230,7 @@ def test_a_robot_unlike_its_model_gets_its_payload_and_robot_box_friction(tmp_pa
     assert problem.space.free == DEFAULT_FREE + ("robot_box_friction",)
     assert problem.robot_differs == ("payload",)
     assert problem.traj.meta["sensors"]["payload"]["applied"] is True
-    assert problem.traj.meta["sensors"]["robot_differs"] == ["payload"]  # identify then draws clips by motion
+    assert problem.traj.meta["sensors"]["robot_differs"] == ["payload"]  # a clean log: identify draws by motion
     # asked for explicitly, the free set is the caller's
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -331,8 +331,8 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
 def test_identify_plans_its_clips_by_the_logs_noise_and_robot(tmp_path):
     """identify.clip_plan: 48 clips of 0.07–0.13 s where the box's velocity holds no measurement noise (a
     push's chaos grows with the horizon), 32 of 0.1–0.2 s where it does (a longer clip outweighs its noisy
-    start), the same simulated time either way; chosen by information where the robot is taken as its
-    model, by box motion where the reading found it is not; what a user gives wins."""
+    start), the same simulated time either way; chosen by information, but by box motion on a clean log
+    whose robot the reading found unlike its model; what a user gives wins."""
     from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, INFORMATION_CANDIDATES, NOISY_LOG_CLIPS, clip_plan
     _, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
     assert clip_plan(clean) == (*CLEAN_LOG_CLIPS, INFORMATION_CANDIDATES) == (48, (0.07, 0.13), 4)
@@ -341,9 +341,11 @@ def test_identify_plans_its_clips_by_the_logs_noise_and_robot(tmp_path):
     assert clip_plan(read, 12, (0.2, 0.3), 1) == (12, (0.2, 0.3), 1)
     assert clip_plan(clean, None, (0.2, 0.3)) == (48, (0.2, 0.3), 4)
     assert clip_plan(read, 20) == (20, (0.1, 0.2), 4)
+    clean.meta.setdefault("sensors", {})["robot_differs"] = ["payload"]
+    assert clip_plan(clean) == (48, (0.07, 0.13), 1)  # by motion: information at a wrong model
+    assert clip_plan(clean, candidates=3)[2] == 3
     read.meta["sensors"]["robot_differs"] = ["payload"]
-    assert clip_plan(read) == (32, (0.1, 0.2), 1)
-    assert clip_plan(read, candidates=3)[2] == 3
+    assert clip_plan(read) == (32, (0.1, 0.2), 4)  # noisy: the draw by motion's noise costs more
 
 
 def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():

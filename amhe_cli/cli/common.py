@@ -70,9 +70,9 @@ def identify_options(f):
                           "noise, 32 where it does (with --horizon's default, the same simulated time)."),
         click.option("--candidates", default=None, type=click.IntRange(1, 64),
                      help="Above 1: draw this many times N_c clips where the box moves and keep the N_c that "
-                          "inform the free parameters most; 1: the draw by box motion alone. Default: 4 where "
-                          "the log's robot is taken as its model, 1 where it is found not to be (information "
-                          "read at a wrong model points at the bumps, where the mismatch acts)."),
+                          "inform the free parameters most; 1: the draw by box motion alone. Default: 1 on a "
+                          "clean log whose robot is found unlike its model (information read at a wrong model "
+                          "points at the bumps, where the mismatch acts), 4 otherwise."),
         click.option("--horizon", default=None, metavar="MIN,MAX",
                      help="Clip horizon range [s], drawn uniformly. Default: 0.07,0.13 on a log whose box "
                           "velocity holds no measurement noise (a push is chaotic in the parameters, more so "

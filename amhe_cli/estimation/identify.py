@@ -99,9 +99,8 @@ class IdentifySettings:
         candidates: > 1 chooses the clips by their information about the free
             parameters at the prior (:func:`~amhe_cli.estimation.clips.choose_informative`)
             among this many times ``n_clips`` drawn by box motion; 1 keeps the
-            draw by box motion alone; None: :func:`clip_plan` chooses (4 where
-            the log's robot is taken as its model, 1 where it is found not to
-            be). The pre-pass costs ``d + 1`` rollouts of every candidate clip
+            draw by box motion alone; None: :func:`clip_plan` chooses (1 on a
+            clean log whose robot is found unlike its model, 4 otherwise). The pre-pass costs ``d + 1`` rollouts of every candidate clip
             and the chosen clips are richer in contacts: 1.06× the wall time on
             ``const_a`` (2 cores), 1.1–1.2× on 16.
         sigma0: initial CMA-ES step in prior-σ units.
@@ -205,7 +204,7 @@ NOISY_LOG_CLIPS = (32, (0.1, 0.2))
 #: Clips where it holds none (a clean or simulated log): shorter, and as many more as keep the simulated
 #: time per candidate the same (48 × 0.1 s against 32 × 0.15 s on average).
 CLEAN_LOG_CLIPS = (48, (0.07, 0.13))
-#: Candidates per clip for the information choice where the log's robot is taken as its model.
+#: Candidates per clip for the information choice (all logs but a clean one of a robot unlike its model).
 INFORMATION_CANDIDATES = 4
 
 
@@ -227,15 +226,16 @@ def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | Non
     32 clips of 0.1–0.2 s, and one without gets :data:`CLEAN_LOG_CLIPS`, 48 of
     0.07–0.13 s (the same simulated time per candidate, so the same wall time).
 
-    **Choice.** Where the robot is taken as its model the clips are chosen by
-    their information about the free parameters (:data:`INFORMATION_CANDIDATES`
-    times as many drawn by box motion, :func:`~amhe_cli.estimation.clips.choose_informative`):
-    a handful of clips carries most of the information, and a draw by motion
-    differs from seed to seed in which it holds. Where the log's reading found
-    the robot unlike its model (``sensors["robot_differs"]``: gains fitted from
-    its efforts, or a payload; :func:`~amhe_cli.estimation.problem.load_problem`)
-    the draw by motion stays: information read at a wrong model points at the
-    bumps, where the mismatch acts.
+    **Choice.** The clips are chosen by their information about the free
+    parameters (:data:`INFORMATION_CANDIDATES` times as many drawn by box
+    motion, :func:`~amhe_cli.estimation.clips.choose_informative`): a handful
+    of clips carries most of the information, and a draw by motion differs
+    from seed to seed in which it holds. One case keeps the draw by motion: a
+    clean log whose reading found the robot unlike its model
+    (``sensors["robot_differs"]``: gains fitted from its efforts, or a
+    payload; :func:`~amhe_cli.estimation.problem.load_problem`). There the
+    information read at a wrong model points at the bumps, where the mismatch
+    acts; on a noisy log the draw by motion's clips of noise cost more than that.
 
     *Measured* (8 seeds per log, one thread each, mass error mean ± std
     (worst)):
@@ -250,13 +250,17 @@ def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | Non
       mismatched log +6.0 ± 13.2 % (23.4) against +6.0 ± 5.6 % (11.9); 64
       clips of 0.05–0.1 s: ``mismatch_b`` +4.0 ± 3.2 % (8.7), ``noisy_b``
       worst 16.9 %; 27 of 0.12–0.24 s: ``noisy_b`` −16.0 ± 40.0 %.
-    - chosen by information (robot as its model): ``noisy_b`` +4.0 ± 3.5 %
-      (8.4, μ 0.040) against +3.1 ± 6.5 % (14.3); ``const_a`` −0.3 ± 0.4 %
-      (0.7); the examples +2.0 ± 1.3 % (4.0) and +0.8 ± 1.0 % (2.4). On the
-      robots unlike their model: ``mismatch_b`` +3.6 ± 1.7 % (6.4, long
-      clips), but the noisy mismatched log +10.5 ± 9.0 % (31.5) against
-      +6.0 ± 5.6 % (11.9) by motion; a mixture (weights ¾ information, ¼
-      uniform) +3.3 ± 8.7 % (14.1), and ``noisy_b`` +3.8 ± 3.1 % (7.9).
+    - by information against by motion: ``noisy_b`` +4.0 ± 3.5 % (8.4, μ
+      0.040) against +3.1 ± 6.5 % (14.3); ``const_a`` with ``noisy_b``'s
+      motion capture (``benchmarks/mocap_degrade.py``) +4.7 ± 3.1 % (8.0)
+      against +4.2 ± 7.2 % (12.8); clean ``const_a`` −0.3 ± 0.4 % (0.7) and
+      the examples +2.0 ± 1.3 % (4.0), +0.8 ± 1.0 % (2.4), as good as by
+      motion; ``mismatch_b`` +6.0 ± 4.1 % (14.7) against +2.6 ± 2.9 % (7.6);
+      ``mismatch_b`` with three draws of ``noisy_b``'s motion capture
+      +10.5 ± 9.0 % (31.5), +0.4 ± 8.3 % (−15.6), +2.9 ± 10.4 % (16.7)
+      against +6.0 ± 5.6 % (11.9), −4.5 ± 16.1 % (−29.7), +6.6 ± 13.7 %
+      (30.6): rms 11.2 % against 13.9 %. A mixture (weights ¾ information, ¼
+      uniform) read the first +3.3 ± 8.7 % (14.1).
 
     Per-clip cost along the line from an estimate to the truth on
     ``mismatch_b`` (25 points) varied most, up to 5× its range in total
@@ -264,7 +268,7 @@ def clip_plan(traj: Trajectory, n_clips: int | None = None, horizon: tuple | Non
     """
     noisy = velocity_noise(traj.meta, "box", traj.dt) > 0
     plan_n, plan_h = NOISY_LOG_CLIPS if noisy else CLEAN_LOG_CLIPS
-    plan_c = 1 if traj.meta.get("sensors", {}).get("robot_differs") else INFORMATION_CANDIDATES
+    plan_c = 1 if traj.meta.get("sensors", {}).get("robot_differs") and not noisy else INFORMATION_CANDIDATES
     return ((plan_n if n_clips is None else int(n_clips)), (plan_h if horizon is None else tuple(horizon)),
             (plan_c if candidates is None else int(candidates)))
 
