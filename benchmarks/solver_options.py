@@ -35,6 +35,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from amhe_cli.estimation.clips import sample_clips  # noqa: E402
+from amhe_cli.estimation.identify import clip_plan  # noqa: E402
 from amhe_cli.estimation.problem import example_logs, load_problem  # noqa: E402
 from amhe_cli.model.rollout import RolloutPool, default_threads  # noqa: E402
 
@@ -98,7 +99,8 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
     problem = load_problem(args.log or example_logs()[0])
     scene = problem.scene
-    clips = sample_clips(problem.traj, scene, args.clips, (0.1, 0.2), rng=np.random.default_rng(args.seed))
+    _, horizon, _ = clip_plan(problem.traj)  # the horizons identify draws for this log
+    clips = sample_clips(problem.traj, scene, args.clips, horizon, rng=np.random.default_rng(args.seed))
     shipped = scene.model
     print(f"model as shipped: jacobian {mujoco.mjtJacobian(shipped.opt.jacobian).name}, "
           f"solver {mujoco.mjtSolver(shipped.opt.solver).name}, nv {shipped.nv}; "
@@ -109,7 +111,7 @@ def main(argv=None) -> None:
                                                               "pos_collision", "actuation", "advance")))
     nthread = args.threads or default_threads()
     roll = ClipRollouts(clips, shipped, nthread)
-    box, base = scene.box_qpos[:3], np.arange(1, 4)  # state row 0 is time; qpos follows
+    box, base = scene.box_qpos[:3], scene.base_qpos[:3]  # state row 0 is time; qpos follows
     try:
         roll.run(shipped)  # warm-up
         print(f"\n{'option':<18} {'time ratio':>10} {'box dev [mm]':>13} {'trunk dev [mm]':>15}  ({nthread} threads)")
@@ -123,7 +125,7 @@ def main(argv=None) -> None:
                 w, x = roll.run(variant)
                 t_var.append(w)
             dev_box = np.abs(x[:, 1 + box] - ref[:, 1 + box]).max() * 1e3
-            dev_base = np.abs(x[:, base] - ref[:, base]).max() * 1e3
+            dev_base = np.abs(x[:, 1 + base] - ref[:, 1 + base]).max() * 1e3
             print(f"{label:<18} {statistics.median(t_var) / statistics.median(t_ship):>10.2f} "
                   f"{dev_box:>13.4f} {dev_base:>15.4f}")
     finally:

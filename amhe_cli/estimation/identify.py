@@ -100,8 +100,9 @@ class IdentifySettings:
             parameters at the prior (:func:`~amhe_cli.estimation.clips.choose_informative`)
             among this many times ``n_clips`` drawn by box motion; 1 keeps the
             draw by box motion alone; None: :func:`clip_plan` chooses (1 on a
-            clean log whose robot is found unlike its model, 4 otherwise). The pre-pass costs ``d + 1`` rollouts of every candidate clip
-            and the chosen clips are richer in contacts: 1.06× the wall time on
+            clean log whose robot is found unlike its model, 4 otherwise). The
+            pre-pass costs ``d + 1`` rollouts of every candidate clip and the
+            chosen clips are richer in contacts: 1.06× the wall time on
             ``const_a`` (2 cores), 1.1–1.2× on 16.
         sigma0: initial CMA-ES step in prior-σ units.
         tolx: stop when every coordinate's CMA-ES step is below this, in

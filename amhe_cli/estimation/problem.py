@@ -92,14 +92,19 @@ class Problem:
         scene: the model ``f`` with geometry matched to the log.
         space: free parameters and their prior.
         prior_source: where the prior came from ("nominal" or a belief path).
-        robot_differs: why the log's robot is not its model (fitted servo gains, a payload), empty if it is.
     """
 
     traj: Trajectory
     scene: Scene
     space: ParameterSpace
     prior_source: str
-    robot_differs: tuple[str, ...] = ()
+
+    @property
+    def robot_differs(self) -> tuple[str, ...]:
+        """Why the log's robot is not its model (fitted servo gains, a payload), empty if it is: what
+        :func:`load_problem` recorded in ``traj.meta["sensors"]["robot_differs"]``, where identify's
+        clip plan reads it."""
+        return tuple(self.traj.meta.get("sensors", {}).get("robot_differs", ()))
 
 
 #: Freed beside the box by default where the log's robot is not its model (fitted gains or a payload):
@@ -211,7 +216,7 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
     differs = tuple(why for why, found in (
         ("servo gains", traj.meta.get("sensors", {}).get("gains", {}).get("used") == "fitted"),
         ("payload", abs(config.trunk_payload) >= PAYLOAD_WARN_KG)) if found)
-    traj.meta.setdefault("sensors", {})["robot_differs"] = list(differs)  # identify.clip_plan reads it
+    traj.meta.setdefault("sensors", {})["robot_differs"] = list(differs)  # Problem.robot_differs, identify.clip_plan
     if params is None:
         params = DEFAULT_FREE
         if differs:
@@ -220,4 +225,4 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
                           f"{', '.join(ROBOT_DIFFERS_FREE)} is freed beside the box (--params to choose)", stacklevel=2)
     scene = Scene(config)
     space = ParameterSpace(scene, free=params, prior=values, prior_std={k: v for k, v in stds.items() if v})
-    return Problem(traj, scene, space, source, differs)
+    return Problem(traj, scene, space, source)
