@@ -230,18 +230,25 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
 
     Args:
         path: PNG to write.
-        head, rows: the estimates table (``t, name, name_std, …``) of
-            :func:`~amhe_cli.estimation.replay.estimates_table`.
+        head, rows: the estimates table (``t, name, name_std, …``, optionally ``name_window``) of
+            :func:`~amhe_cli.estimation.replay.estimates_table`; window estimates, where
+            present, are drawn as dots behind the fused estimate.
         truth: a :class:`~amhe_cli.estimation.replay.TruthSeries` or None.
         skipped: (n,) bool, updates whose window held no information (marked).
     """
     path = _check_png(path)
-    names = [h for h in head[1:] if not h.endswith("_std")]
+    names = [h for h in head[1:] if not h.endswith(("_std", "_window"))]
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.6 * len(names)), sharex=True, squeeze=False,
                              constrained_layout=True)
     t = rows[:, 0]
     for ax, name in zip(axes[:, 0], names):
-        v = _estimate_band(ax, t, rows[:, head.index(name)], rows[:, head.index(name + "_std")], "estimate")
+        fused = name + "_window" in head
+        if fused:
+            own = np.ones(len(t), bool) if skipped is None else ~np.asarray(skipped, bool)
+            ax.plot(t[own], rows[own, head.index(name + "_window")], ".", color="tab:orange", ms=5,
+                    label="window estimate (eq. 4)")
+        v = _estimate_band(ax, t, rows[:, head.index(name)], rows[:, head.index(name + "_std")],
+                           "fused estimate" if fused else "estimate")
         if skipped is not None and np.any(skipped):
             ax.plot(t[skipped], v[skipped], "x", color="0.5", ms=4, label="kept (window at rest)")
         if truth is not None:

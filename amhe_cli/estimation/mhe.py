@@ -33,6 +33,7 @@ import numpy as np
 
 from amhe_cli.estimation.clips import rest_travel, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
+from amhe_cli.estimation.fusion import WindowFusion
 from amhe_cli.errors import AmheError
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
@@ -100,6 +101,13 @@ class MHESettings:
             noise asks (:func:`noise_clip`, at most ``window``).
         max_steps: simulated steps per candidate per update (the most excited clips are kept).
         min_speed: box speed [m/s] below which a clip is considered at rest (uninformative).
+        fuse: fuse successive window estimates into the reported one
+            (:class:`~amhe_cli.estimation.fusion.WindowFusion`: a Kalman arrival
+            cost per parameter with change detection). The windows still chain
+            their own estimates as ``p̂⁻`` (eq. 4 as the paper has it); only
+            what the estimator reports (:attr:`MovingHorizonEstimator.mean`)
+            is fused. Off by default (``amhe run``'s closed loop is measured
+            without it); ``mhe-replay`` turns it on (:data:`REPLAY_SETTINGS`).
         seed: sampling seed.
     """
 
@@ -114,6 +122,7 @@ class MHESettings:
     clip: float | None = 0.1
     max_steps: int = 150
     min_speed: float = 0.02
+    fuse: bool = False
     seed: int = 0
 
     def check(self) -> None:
@@ -131,18 +140,27 @@ class MHESettings:
         return asdict(self)
 
 
+#: What ``amhe mhe-replay`` changes from the library's defaults, offline where it need not keep up with a
+#: robot: 300 steps and 20 samples per update follow the mass switch faster (benchmarks/mhe_accuracy.py,
+#: docs/reference.md), and that speed is what lets the fused estimate (``fuse``) average noisy windows
+#: without losing the switch (:mod:`~amhe_cli.estimation.fusion`).
+REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
+
+
 @dataclass
 class Update:
     """One MHE update.
 
     Attributes:
         t: time [s] of the window's end (data up to here).
-        mean: (d,) estimate ``p̂_t`` (flat coordinates of the space).
-        std: (d,) σ of the sampling distribution at the end.
+        mean: (d,) estimate ``p̂_t`` (flat coordinates of the space): the fused one
+            with ``MHESettings.fuse``, else the window's.
+        std: (d,) its σ: the fused σ, else that of the sampling distribution at the end.
         cost: cost of the mean over the window (NaN if skipped).
         iterations: iterations run (0 if skipped).
         compute_time: wall time of the update [s].
         skipped: True if the window held no informative data (estimate kept).
+        window_mean: (d,) the window's own estimate (eq. 4); equals ``mean`` without fusion.
     """
 
     t: float
@@ -152,6 +170,7 @@ class Update:
     iterations: int
     compute_time: float
     skipped: bool
+    window_mean: np.ndarray | None = None
 
 
 class MovingHorizonEstimator:
@@ -170,8 +189,10 @@ class MovingHorizonEstimator:
         nthread: threads of a pool created here.
 
     Attributes:
-        mean: (d,) current estimate ``p̂``.
-        std: (d,) its sampling σ after the last update.
+        mean: (d,) current estimate ``p̂`` (fused with ``settings.fuse``).
+        std: (d,) its σ after the last update.
+        window_mean: (d,) the last window's own estimate, the ``p̂⁻`` of the next window.
+        fusion: the :class:`~amhe_cli.estimation.fusion.WindowFusion`, or None.
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -189,6 +210,9 @@ class MovingHorizonEstimator:
         self.rng = np.random.default_rng(self.settings.seed)
         self.mean = space.mean0.copy()
         self.std = space.scale * self.settings.sigma_init
+        self.window_mean = self.mean.copy()
+        self.fusion = (WindowFusion(self.mean, self.std, space.scale, self.settings.sigma_floor, self.settings.window)
+                       if self.settings.fuse else None)
         pull = np.empty(space.dim)
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
@@ -223,13 +247,14 @@ class MovingHorizonEstimator:
         stop = int(np.searchsorted(traj.t, t, side="right"))
         clips = self.window_clips(traj, stop)
         if clips is None:
-            return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True)
+            return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True,
+                          self.window_mean.copy())
         weights = self.weights or StateWeights.for_log(traj)
         if self._cost is None:
             self._cost = RolloutCost(self.scene, self.space, clips, weights, pool=self.pool)
         else:
             self._cost.set_clips(clips, weights)
-        prev = self.mean.copy()
+        prev = self.window_mean.copy()
         self._cost.set_prior(prev, self.pull_std)
         mu = prev.copy()
         sigma = self.space.scale * s.sigma_init
@@ -244,6 +269,9 @@ class MovingHorizonEstimator:
             mu = self.space.project(mu)[0][0]
             if np.all(sigma <= floor):
                 break
+        self.window_mean = mu.copy()
         self.mean, self.std = mu, np.maximum(sigma, floor)
         j = float(self._cost(mu[None])[0])
-        return Update(t, mu.copy(), self.std.copy(), j, it, time.perf_counter() - t0, False)
+        if self.fusion is not None:
+            self.mean, self.std = self.fusion.update(t, mu), self.fusion.std
+        return Update(t, self.mean.copy(), self.std.copy(), j, it, time.perf_counter() - t0, False, mu.copy())

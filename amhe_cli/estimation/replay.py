@@ -142,14 +142,22 @@ def truth_series(log: str, traj: Trajectory, csv_path: str | None = None) -> Tru
     return None
 
 
-def estimates_table(space: ParameterSpace, result: ReplayResult) -> tuple[list[str], np.ndarray]:
+def estimates_table(space: ParameterSpace, result: ReplayResult, windows: bool = False) -> tuple[list[str], np.ndarray]:
     """CSV columns ``t, <name>, <name>_std, …`` (vectors as ``<name>_0`` …) and (n, columns) rows,
-    in physical units, one row per update, stamped with the time the estimate became usable."""
+    in physical units, one row per update, stamped with the time the estimate became usable.
+
+    With ``windows`` (for a fused estimator, ``MHESettings.fuse``) the table ends with one
+    ``<name>_window`` column per value: each window's own estimate (eq. 4), which the fused one combines.
+    """
     head = ["t"]
+    labels_all = []
     for name, sl in space.slices().items():
         k = sl.stop - sl.start
         labels = [name] if k == 1 else [f"{name}_{i}" for i in range(k)]
+        labels_all += labels
         head += [x for lab in labels for x in (lab, f"{lab}_std")]
+    if windows:
+        head += [f"{lab}_window" for lab in labels_all]
     rows = []
     for u, t in zip(result.updates, result.usable_at):
         val, sd = space.physical(u.mean, u.std)
@@ -157,6 +165,9 @@ def estimates_table(space: ParameterSpace, result: ReplayResult) -> tuple[list[s
         for sl in space.slices().values():
             for i in range(sl.start, sl.stop):
                 row += [val[i], sd[i]]
+        if windows:
+            own = u.window_mean if u.window_mean is not None else u.mean
+            row += list(space.physical(own)[0])
         rows.append(row)
     return head, np.array(rows).reshape(len(rows), len(head))
 
