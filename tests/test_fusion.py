@@ -11,8 +11,8 @@ from amhe_cli.estimation.fusion import GATE, WindowFusion
 SCALE = np.array([3.0, 0.5])  # box mass [kg], friction [-]
 
 
-def fusion(mean0=(4.0, 0.5), std0=(0.45, 0.075)):
-    return WindowFusion(np.array(mean0), np.array(std0), SCALE, floor=0.01, window=1.0)
+def fusion(mean0=(4.0, 0.5), std0=(3.0, 0.5), noise0=(0.45, 0.075)):
+    return WindowFusion(np.array(mean0), np.array(std0), np.array(noise0), SCALE, floor=0.01, window=1.0)
 
 
 def feed(f, truth, sigma, n, rng, t0=0.0, every=0.5):
@@ -80,9 +80,12 @@ def test_a_small_sustained_shift_is_followed(monkeypatch):
 
 
 @pytest.mark.parametrize("kw, words", [
-    (dict(mean0=np.zeros(2), std0=np.ones(3), scale=np.ones(2), floor=0.01, window=1.0), "must be (d,) alike"),
-    (dict(mean0=np.zeros(2), std0=np.array([1.0, 0.0]), scale=np.ones(2), floor=0.01, window=1.0), "positive"),
-    (dict(mean0=np.zeros(2), std0=np.ones(2), scale=np.ones(2), floor=0.01, window=0.0), "positive"),
+    (dict(mean0=np.zeros(2), std0=np.ones(3), noise0=np.ones(2), scale=np.ones(2), floor=0.01, window=1.0),
+     "must be (d,) alike"),
+    (dict(mean0=np.zeros(2), std0=np.array([1.0, 0.0]), noise0=np.ones(2), scale=np.ones(2), floor=0.01,
+          window=1.0), "positive"),
+    (dict(mean0=np.zeros(2), std0=np.ones(2), noise0=np.ones(2), scale=np.ones(2), floor=0.01, window=0.0),
+     "positive"),
 ])
 def test_bad_shapes_and_values_raise(kw, words):
     with pytest.raises(ValueError, match=words.replace("(", r"\(").replace(")", r"\)")):

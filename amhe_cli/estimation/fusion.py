@@ -77,7 +77,9 @@ class WindowFusion:
 
     Args:
         mean0: (d,) initial estimate (the prior ``p̂_0``).
-        std0: (d,) its σ, also the window noise σ assumed until :data:`NOISE_MIN`
+        std0: (d,) its σ (the prior's: a confident belief from ``identify`` is
+            held until the windows disagree with it, the nominal prior is not).
+        noise0: (d,) σ of one window estimate assumed until :data:`NOISE_MIN`
             window estimates have been seen.
         scale: (d,) nominal scale of each coordinate (``ParameterSpace.scale``).
         floor: σ floor of ``R`` in units of ``scale``.
@@ -89,17 +91,19 @@ class WindowFusion:
         restarts: number of confirmed changes and CUSUM restarts so far.
 
     Raises:
-        ValueError: shapes that disagree, or a non-positive ``std0``/``scale``/``window``.
+        ValueError: shapes that disagree, or a non-positive ``std0``/``noise0``/``scale``/``window``.
     """
 
-    def __init__(self, mean0: np.ndarray, std0: np.ndarray, scale: np.ndarray, floor: float, window: float):
-        mean0, std0, scale = (np.asarray(a, dtype=float).copy() for a in (mean0, std0, scale))
-        if not (mean0.shape == std0.shape == scale.shape) or mean0.ndim != 1:
-            raise ValueError(f"mean0 {mean0.shape}, std0 {std0.shape} and scale {scale.shape} must be (d,) alike")
-        if np.any(std0 <= 0) or np.any(scale <= 0) or not window > 0:
-            raise ValueError("std0, scale and window must be positive")
+    def __init__(self, mean0: np.ndarray, std0: np.ndarray, noise0: np.ndarray, scale: np.ndarray, floor: float,
+                 window: float):
+        mean0, std0, noise0, scale = (np.asarray(a, dtype=float).copy() for a in (mean0, std0, noise0, scale))
+        if not (mean0.shape == std0.shape == noise0.shape == scale.shape) or mean0.ndim != 1:
+            raise ValueError(f"mean0 {mean0.shape}, std0 {std0.shape}, noise0 {noise0.shape} and scale "
+                             f"{scale.shape} must be (d,) alike")
+        if np.any(std0 <= 0) or np.any(noise0 <= 0) or np.any(scale <= 0) or not window > 0:
+            raise ValueError("std0, noise0, scale and window must be positive")
         self.x, self.P = mean0, std0 ** 2
-        self.r0, self.scale, self.window = std0 ** 2, scale, float(window)
+        self.r0, self.scale, self.window = noise0 ** 2, scale, float(window)
         self.r_floor = (floor * scale) ** 2
         self.history: list[np.ndarray] = []
         self.t: float | None = None

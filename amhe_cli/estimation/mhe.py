@@ -211,8 +211,8 @@ class MovingHorizonEstimator:
         self.mean = space.mean0.copy()
         self.std = space.scale * self.settings.sigma_init
         self.window_mean = self.mean.copy()
-        self.fusion = (WindowFusion(self.mean, self.std, space.scale, self.settings.sigma_floor, self.settings.window)
-                       if self.settings.fuse else None)
+        self.fusion = (WindowFusion(self.mean, space.std0, self.std, space.scale, self.settings.sigma_floor,
+                                    self.settings.window) if self.settings.fuse else None)
         pull = np.empty(space.dim)
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
