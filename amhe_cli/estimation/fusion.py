@@ -114,10 +114,12 @@ class WindowFusion:
 
     @property
     def mean(self) -> np.ndarray:
+        """(d,) fused estimate (a copy)."""
         return self.x.copy()
 
     @property
     def std(self) -> np.ndarray:
+        """(d,) σ of the fused estimate, ``√P``: the windows' scatter averaged, not a bias they share."""
         return np.sqrt(self.P)
 
     def noise(self) -> np.ndarray:
