@@ -34,6 +34,15 @@ def test_a_constant_parameter_is_averaged_over_windows():
     assert f.restarts <= 1
 
 
+def test_a_nominal_prior_gives_way_to_the_first_windows_a_confident_one_does_not():
+    y = np.array([2.5, 0.3])
+    vague = fusion(mean0=(3.7, 0.5))
+    np.testing.assert_allclose(vague.update(1.0, y), y)  # the nominal prior knows less than one window
+    sure = fusion(mean0=(2.6, 0.32), std0=(0.02, 0.002))
+    first = sure.update(1.0, y)
+    assert np.all(np.abs(first - [2.6, 0.32]) < 0.01 * np.abs(y - [2.6, 0.32]) + 1e-12)
+
+
 def test_an_isolated_outlier_window_is_held_not_fused():
     rng = np.random.default_rng(1)
     truth, sigma = np.array([4.0, 0.5]), np.array([0.05, 0.005])

@@ -18,6 +18,11 @@ window estimates ``y_k``:
   successive window estimates, ``R = (MAD / 0.6745 / √2)²``, floored at
   ``(σ_floor · scale)²`` (robust to a change, which spoils only a few
   differences);
+* **warm-up**: until :data:`NOISE_MIN` windows have been seen ``R`` is a guess
+  (the sampling σ), and a coordinate whose prior is no surer than that reports
+  the window's estimate as it is (averaging a sampler still converging from a
+  nominal prior only lags it); a confident prior (a belief from ``identify``)
+  is fused as below from the first window on;
 * **Kalman update** ``P⁻ = P + q² Δt``, ``K = P⁻ / (P⁻ + R)``,
   ``x = x + K (y − x)``, ``P = (1 − K) P⁻`` — the closed-form minimiser of
   ``(x − x⁻)²/P⁻ + (x − y)²/R``, i.e. eq. (4)'s prior term with ``W_p = 1/P⁻``
@@ -138,7 +143,12 @@ class WindowFusion:
         dt = 0.0 if self.t is None else max(t - self.t, 0.0)
         self.t = t
         Pm = self.P + (PROCESS_RATE * self.scale) ** 2 * dt
+        # until the windows' noise can be read, a prior no surer than one window gives way to the window
+        warm = (len(self.history) < NOISE_MIN) & (Pm >= R)
         for i in range(y.size):
+            if warm[i]:
+                self.x[i], self.P[i] = y[i], R[i]
+                continue
             nu = y[i] - self.x[i]
             z = nu / np.sqrt(Pm[i] + R[i])
             if abs(z) > GATE:
