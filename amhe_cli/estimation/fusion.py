@@ -47,17 +47,17 @@ followed one non-overlapping window after it shows.
 setting                     mass switch  worst post    T4 step @3 s /  ``noisy_b`` μ
                             targets      switch error  from 3 s        within 0.05 (worst)
 ==========================  ===========  ============  ==============  =================
-``mhe-replay`` (fused)      8/8          6.3 %         7/8, 6/8        8/8 (0.041)
+``mhe-replay`` (fused)      8/8          6.3 %         7/8, 6/8        8/8 (0.043)
 the same, not fused         8/8          5.3 %         7/8, 4/8        0/8 (0.112)
 library (10 samples, 150)   5/8          13.6 %        6/8, 3/8        0/8 (0.146)
-library, fused              3/8          14.0 %        6/8, 4/8        6/8 (0.104)
+library, fused              3/8          14.0 %        6/8, 4/8        5/8 (0.088)
 ==========================  ===========  ============  ==============  =================
 
 With 10 samples the windows follow the mass switch more slowly and the
 confirmation delay costs it, so only ``mhe-replay`` fuses by default. On a
 mass switch recorded through noisy motion capture (``mass_switch.mcap`` given
 ``noisy_b``'s mocap by ``benchmarks/mocap_degrade.py --seed 21``) no setting
-meets the targets; fused, the worst errors are 8.0 % before and 24.9 % after
+meets the targets; fused, the worst errors are 16.8 % before and 24.7 % after
 the switch and μ 0.133, against 16.8 %, 27.6 % and 0.212 not fused.
 """
 
