@@ -11,8 +11,8 @@ from amhe_cli.estimation.fusion import GATE, WindowFusion
 SCALE = np.array([3.0, 0.5])  # box mass [kg], friction [-]
 
 
-def fusion(mean0=(4.0, 0.5), std0=(3.0, 0.5), noise0=(0.45, 0.075)):
-    return WindowFusion(np.array(mean0), np.array(std0), np.array(noise0), SCALE, floor=0.01, window=1.0)
+def fusion(mean0=(4.0, 0.5), std0=(3.0, 0.5), noise0=(0.45, 0.075), window=1.0):
+    return WindowFusion(np.array(mean0), np.array(std0), np.array(noise0), SCALE, floor=0.01, window=window)
 
 
 def feed(f, truth, sigma, n, rng, t0=0.0, every=0.5):
@@ -25,13 +25,30 @@ def feed(f, truth, sigma, n, rng, t0=0.0, every=0.5):
 def test_a_constant_parameter_is_averaged_over_windows():
     rng = np.random.default_rng(0)
     truth, sigma = np.array([4.2, 0.55]), np.array([0.3, 0.04])
-    f = fusion()
+    f = fusion(window=0.5)  # windows 0.5 s long every 0.5 s: independent
     est = feed(f, lambda t: truth, sigma, 40, rng)
     late = est[20:] - truth
     # the windows scatter by sigma; the fused estimate by a fraction of it, and its sigma says so
     assert np.all(np.sqrt((late ** 2).mean(axis=0)) < 0.5 * sigma)
     assert np.all(f.std < 0.5 * sigma) and np.all(f.std > 0.05 * sigma)
     assert f.restarts <= 1
+
+
+def test_the_stated_sigma_holds_the_truth_when_successive_windows_share_data():
+    """Windows of 1 s every 0.5 s share half their data: their errors are correlated (MA(1))."""
+    rng = np.random.default_rng(4)
+    truth, sigma = np.array([4.2, 0.55]), np.array([0.3, 0.04])
+    f = fusion()
+    e = rng.standard_normal((401, 2))
+    covered, covered_p = [], []
+    for k in range(1, 401):
+        x = f.update(0.5 * k, truth + sigma * (e[k] + e[k - 1]) / np.sqrt(2.0))
+        if k > 20:
+            covered.append(np.abs(x - truth) <= 2 * f.std)
+            covered_p.append(np.abs(x - truth) <= 2 * np.sqrt(f.P))
+    assert np.mean(covered) >= 0.85  # nominally 95 %
+    assert np.mean(covered) > np.mean(covered_p) + 0.05  # √P alone, as if independent, is too narrow
+    assert np.all(f.overlap() >= 2.0)  # two windows per window length
 
 
 def test_a_nominal_prior_gives_way_to_the_first_windows_a_confident_one_does_not():
