@@ -112,7 +112,6 @@ class WindowFusion:
         self.r_floor = (floor * scale) ** 2
         self.history: list[np.ndarray] = []
         self.times: list[float] = []
-        self.t: float | None = None
         d = mean0.size
         self.cusum_hi, self.cusum_lo = np.zeros(d), np.zeros(d)
         self.held: list[list[tuple[float, float]]] = [[] for _ in range(d)]
@@ -168,11 +167,10 @@ class WindowFusion:
     def update(self, t: float, y: np.ndarray) -> np.ndarray:
         """Fuse the estimate ``y`` (d,) of the window ending at ``t`` [s]; returns the fused (d,) estimate."""
         y = np.asarray(y, dtype=float)
+        dt = max(t - self.times[-1], 0.0) if self.times else 0.0
         self.history.append(y.copy())
         self.times.append(float(t))
         R = self.noise()
-        dt = 0.0 if self.t is None else max(t - self.t, 0.0)
-        self.t = t
         Pm = self.P + (PROCESS_RATE * self.scale) ** 2 * dt
         # until the windows' noise can be read, a prior no surer than one window gives way to the window
         warm = (len(self.history) < NOISE_MIN) & (Pm >= R)
