@@ -152,16 +152,17 @@ class WindowFusion:
         ok = j >= 0
         if ok.sum() < NOISE_MIN - 1:
             return np.full_like(self.P, per_window)
-        mad = np.median(np.abs(H[ok] - H[j[ok]]), axis=0)
-        r_apart = np.maximum((mad / 0.6745 / np.sqrt(2.0)) ** 2, self.r_floor)
-        return per_window * np.maximum(r_apart / self.noise(), 1.0)
+        return per_window * np.maximum(self._variance(H[ok] - H[j[ok]]) / self.noise(), 1.0)
 
     def noise(self) -> np.ndarray:
         """(d,) variance ``R`` of one window estimate, from the recent window estimates (module doc)."""
         if len(self.history) < NOISE_MIN:
             return self.r0.copy()
-        H = np.array(self.history[-NOISE_MEMORY:])
-        mad = np.median(np.abs(np.diff(H, axis=0)), axis=0)
+        return self._variance(np.diff(np.array(self.history[-NOISE_MEMORY:]), axis=0))
+
+    def _variance(self, diffs: np.ndarray) -> np.ndarray:
+        """(d,) variance of one estimate from (n, d) differences of two: ``(MAD / 0.6745 / √2)²``, floored."""
+        mad = np.median(np.abs(diffs), axis=0)
         return np.maximum((mad / 0.6745 / np.sqrt(2.0)) ** 2, self.r_floor)
 
     def update(self, t: float, y: np.ndarray) -> np.ndarray:
