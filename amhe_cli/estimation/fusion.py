@@ -37,8 +37,9 @@ window estimates ``y_k``:
   and restarts the variance (``P = R``) the same way.
 
 So a parameter that stays put is averaged over many windows (its reported σ
-shrinks as ``√P``), an isolated outlier window is ignored, and a jump is
-followed one non-overlapping window after it shows.
+shrinks with ``√P``, scaled for windows that share data: :attr:`WindowFusion.std`),
+an isolated outlier window is ignored, and a jump is followed one
+non-overlapping window after it shows.
 
 *Measured* (``benchmarks/mhe_accuracy.py --seeds 8``, one thread per run; the
 ``mhe-replay`` row is its defaults, 300 steps and 20 samples per update, fused):
