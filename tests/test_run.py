@@ -544,7 +544,7 @@ def test_t1_closed_loop_makes_progress(t1_true_runs):
     assert r.traj.dt == pytest.approx(0.002)
     assert np.isfinite([r.e_g, r.J, r.t_exec, r.rmse]).all()
     assert r.e_g == pytest.approx(task.goal_error(box[-1, :2]))
-    assert set(r.metrics()) == {"success", "e_g", "J", "t_exec", "rmse"}
+    assert set(r.metrics()) == {"success", "e_g", "J", "t_exec", "rmse", "fell", "recoveries"}
     assert r.control_hz > 0
 
 
@@ -660,7 +660,7 @@ def test_run_json_records_and_refuses_to_overwrite(capsys, tmp_path):
     lines = out.strip().splitlines()
     assert len(lines) == 1, out
     metrics = json.loads(lines[0])
-    assert set(metrics) == {"success", "e_g", "J", "t_exec", "rmse", "reason"}  # 0.4 s cannot reach the goal
+    assert set(metrics) == {"success", "e_g", "J", "t_exec", "rmse", "fell", "recoveries", "reason"}  # 0.4 s: no goal
     assert isinstance(metrics["success"], bool) and not metrics["success"]
     assert metrics["reason"].startswith("time limit (0.4 s) reached with the box")
     assert metrics["t_exec"] == pytest.approx(0.4, abs=0.01)
@@ -686,7 +686,7 @@ def test_run_json_records_and_refuses_to_overwrite(capsys, tmp_path):
 def test_summarise_gives_success_rate_and_mean_std_per_mode():
     def row(mode, success, e_g, J, t_exec, rmse):
         return {"task": "t1", "mode": mode, "seed": 0, "success": success, "e_g": e_g, "J": J, "t_exec": t_exec,
-                "rmse": rmse, "fell": False, "control_hz": 50.0}
+                "rmse": rmse, "fell": not success, "recoveries": 1, "control_hz": 50.0}
 
     rows = [row("true", True, 0.1, 1.0, 10.0, 0.05), row("true", False, 0.5, 3.0, 20.0, 0.15),
             row("true", True, 0.3, 2.0, 12.0, 0.10), row("true", True, 0.2, 2.0, 14.0, 0.10),
@@ -697,6 +697,7 @@ def test_summarise_gives_success_rate_and_mean_std_per_mode():
     assert base["n"] == 1 and base["S_R"] == 0.0
     assert base["e_g"] == (pytest.approx(1.0), pytest.approx(0.0))
     assert true["n"] == 4 and true["S_R"] == pytest.approx(75.0)
+    assert true["falls"] == 1 and true["recoveries"] == 4 and base["falls"] == 1
     for key, vals in (("e_g", [0.1, 0.5, 0.3, 0.2]), ("J", [1.0, 3.0, 2.0, 2.0]), ("t_exec", [10.0, 20.0, 12.0, 14.0]),
                       ("rmse", [0.05, 0.15, 0.1, 0.1])):
         assert true[key] == (pytest.approx(np.mean(vals)), pytest.approx(np.std(vals))), key
@@ -899,12 +900,17 @@ def test_evaluate_sweep_writes_rows_per_value_and_the_ablation_figure(tmp_path, 
 def test_rows_of_an_older_csv_read_but_are_not_appended_to(tmp_path):
     from amhe_cli.errors import AmheError
     from amhe_cli.io.rows import ROW_KEYS, RowLog, read_rows
-    old = tmp_path / "old.csv"
-    old.write_text(",".join(ROW_KEYS[:-1]) + "\nt4,true,0,True,0.05,1.0,30.0,0.1,False,9.5\n")
-    (row,) = read_rows(old)
-    assert row["setting"] == "" and row["success"] is True and row["seed"] == 0
-    with pytest.raises(AmheError, match="--force"):
-        RowLog(old)
+    legacy = [k for k in ROW_KEYS if k != "recoveries"]
+    before_sweeps = tmp_path / "old.csv"  # no setting, no recoveries column
+    before_sweeps.write_text(",".join(legacy[:-1]) + "\nt4,true,0,True,0.05,1.0,30.0,0.1,False,9.5\n")
+    before_reflex = tmp_path / "older.csv"  # a setting, no recoveries column
+    before_reflex.write_text(",".join(legacy) + "\nt4,true,0,True,0.05,1.0,30.0,0.1,True,9.5,\n")
+    for old, fell in ((before_sweeps, False), (before_reflex, True)):
+        (row,) = read_rows(old)
+        assert row["setting"] == "" and row["success"] is True and row["seed"] == 0
+        assert row["fell"] is fell and row["recoveries"] == 0 and row["control_hz"] == 9.5
+        with pytest.raises(AmheError, match="--force"):
+            RowLog(old)
 
 
 def test_a_ctrl_c_between_the_csv_and_the_json_line_acts_after_both(tmp_path, monkeypatch):

@@ -34,7 +34,7 @@ from amhe_cli.io.rows import RowLog, read_rows
                    "CPUs), --ray ADDRESS joins a running cluster (e.g. ray://head:10001; amhe must be installed "
                    "on its nodes). Needs pip install 'amhe[ray]'.")
 @click.option("--out", default=None, type=click.Path(),
-              help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, control_hz, "
+              help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, recoveries, control_hz, "
                    "setting (default: evaluate_<task>.csv).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl).")
 @click.option("--resume", is_flag=True,
@@ -153,9 +153,9 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
     click.echo(f"{task.name}, {seeds} seed(s) per mode (mean ± std)")
     wide = max((len(label) for label in labels), default=0)
     head = f"{'setting':<{wide}}  " if sweeps else ""
-    click.echo(f"{head}{'mode':>10}  {'S_R %':>6}  {'e_g [m]':>15}  {'J':>15}  {'t_exec [s]':>15}")
+    click.echo(f"{head}{'mode':>10}  {'S_R %':>6}  {'falls':>5}  {'e_g [m]':>15}  {'J':>15}  {'t_exec [s]':>15}")
     for r in table:
         lead = f"{r['setting']:<{wide}}  " if sweeps else ""
-        click.echo(f"{lead}{r['mode']:>10}  {r['S_R']:6.1f}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
+        click.echo(f"{lead}{r['mode']:>10}  {r['S_R']:6.1f}  {r['falls']:5d}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
                    f"{r['J'][0]:7.2f} ± {r['J'][1]:5.2f}  {r['t_exec'][0]:7.1f} ± {r['t_exec'][1]:5.1f}")
     click.echo(f"per-run rows: {out_path}" + (f"; ablation figure: {plot_path}" if plot_path else ""))

@@ -27,7 +27,7 @@ from amhe_cli.estimation.identify import IdentifySettings
               help="Starting belief YAML (default: sim: probe in the sim first, about a minute on 2 cores, saved "
                    "as <out stem>.probe.belief.yaml for the next run's --belief; go1: the nominal prior).")
 @click.option("--config", default=None, type=click.Path(),
-              help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task, safety overrides.")
+              help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task, safety, reflex overrides.")
 @click.option("--seed", default=0, show_default=True, type=int,
               help="Seed of the planner's sampling, the MHE and the sim probe.")
 @click.option("--duration", default=None, type=float, help="Time limit [s] (default: the task's).")

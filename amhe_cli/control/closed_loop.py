@@ -54,7 +54,9 @@ from amhe_cli.model.params import ParameterSpace
 from amhe_cli.plants.base import Plant, PlantFailure
 from amhe_cli.plants.sim import SimPlant
 from amhe_cli.io.truth import TRUTH_RECORD
+from amhe_cli.control.gait import GAITS
 from amhe_cli.control.planner import Planner, PlannerSettings
+from amhe_cli.control.reflex import FallReflex, ReflexSettings, recovery_command
 from amhe_cli.model.scene import Scene, SceneConfig
 from amhe_cli.control.tasks import Task
 from amhe_cli.io.trajectory import Trajectory
@@ -166,6 +168,7 @@ class RunSettings:
         seed: seeds the planner's and the estimator's sampling.
         threads: rollout threads of the planner (the MHE uses one).
         mhe_params: parameters the MHE frees (a subset of :data:`RUN_PARAMS`).
+        reflex: the fall-prevention reflex's envelope (:class:`~amhe_cli.control.reflex.ReflexSettings`).
         kp, kd: joint PD gains of the position servos [N·m/rad], [N·m·s/rad],
             the same in plant and planner (they are the controller's command
             interface, not a plant secret). 100/4 by measurement: with the
@@ -184,6 +187,7 @@ class RunSettings:
     kp: float = 100.0
     kd: float = 4.0
     mhe_params: tuple = MHE_PARAMS
+    reflex: ReflexSettings = field(default_factory=ReflexSettings)
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -193,6 +197,7 @@ class RunSettings:
             raise AmheError(f"mhe_params is empty: expected some of {', '.join(RUN_PARAMS)}")
         self.planner.check()
         self.mhe.check()
+        self.reflex.check()
         if self.cycle < self.planner.dt - 1e-12:
             raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
 
@@ -208,6 +213,7 @@ class RunResult:
         t_exec: time until the box reached ``task.goal_tol`` of the goal, else the run's length [s].
         rmse: RMS error of the base's forward speed to the commanded speed [m/s].
         fell: the base dropped below ``task.fall_height``.
+        recoveries: times the fall-prevention reflex stopped the task to recover the stand.
         control_hz: planner cycles per wall-clock second (plant stepping included).
         plan_times: (cycles,) wall time of each planner cycle [s].
         traj: the plant's recording (2 ms grid), truth series in ``meta``.
@@ -237,11 +243,12 @@ class RunResult:
     plan_times: np.ndarray | None = None
     failure: str | None = None
     extras: dict = field(default_factory=dict)
+    recoveries: int = 0
 
     def metrics(self) -> dict:
         """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed)."""
         out = {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
-               "rmse": self.rmse}
+               "rmse": self.rmse, "fell": bool(self.fell), "recoveries": int(self.recoveries)}
         if self.failure is not None:
             out["failure"] = self.failure
         return out
@@ -324,6 +331,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     pdt = s.planner.dt
     if plant is None:
         plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime, cycle=s.cycle)
+    reflex = FallReflex(s.reflex, floor=plant.scene.config.robot_floor)
     messages: list[str] = []
     warnings: list[str] = []
 
@@ -364,6 +372,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
 
         half_depth = TASK_BOX_SIZE[0] / 2
         sc = plant.scene
+        stand = GAITS["stand"]
         next_update = s.mhe.window
         pending = False
         phase = None
@@ -376,12 +385,18 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
             cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth, t=t,
                                box_yaw=float(quat_to_yaw(q[sc.box_qpos[3:]])))
+            text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]])
+            if text is not None:
+                (warn if reflex.active else messages.append)(f"t={t:.2f} s: {text}")
+            if reflex.active:
+                cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw)
             if cmd["phase"] != phase:
-                if phase == "push":
+                if phase == "push" and cmd["phase"] == "approach":
                     warn(f"t={t:.2f} s: lost the box, walking back behind it")
-                elif phase is not None:
+                elif phase is not None and cmd["phase"] == "push":
                     messages.append(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
+            gait = stand if reflex.active else planner.gait
             state = pscene.full_state(q[None], v[None])[0]
             lead = 0.0
             if plant.realtime and latency is not None:
@@ -391,7 +406,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 lead = n * pdt
                 idx = np.round((t + pdt * np.arange(n) - prev_start) / pdt).astype(int)
                 state = planner.predict(state, prev_rows[np.clip(idx, 0, len(prev_rows) - 1)])
-            plan = planner.plan(state, t + lead, cmd)
+            plan = planner.plan(state, t + lead, cmd, gait)
             if len(plan_times):  # the first plan warms caches up: not a latency to expect
                 latency = min(plan.compute_time if latency is None else 0.7 * latency + 0.3 * plan.compute_time,
                               MAX_LEAD)
@@ -400,7 +415,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])
             box_path.append([t, *box_xy])
-            ref0 = planner.gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"))
+            ref0 = gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"))
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
                                                box_quat=q[sc.box_qpos[3:]])))
@@ -469,6 +484,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
         messages=messages, warnings=warnings, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
         plan_times=np.array(plan_times), failure=failure, extras=plant.extras(),
+        recoveries=reflex.recoveries,
     )
 
 
@@ -506,6 +522,8 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
                      **{k: str(v) for k, v in (extra_meta or {}).items()}},
         "amhe_run_log": {f"{i:04d}": m for i, m in enumerate(result.messages)},
     }
+    if result.traj.meta.get("monotonic_t0") is not None:  # a robot's run: its t = 0 on the machine's clock
+        meta["amhe_run"]["monotonic_t0"] = f"{result.traj.meta['monotonic_t0']:.6f}"
     if truth is not None:
         meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
     extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]

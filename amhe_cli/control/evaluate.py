@@ -31,10 +31,11 @@ from amhe_cli.estimation.mhe import MHESettings
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.control.planner import REALTIME_PLANNER, PlannerSettings
 from amhe_cli.control.probing import simulate_probe
+from amhe_cli.control.reflex import ReflexSettings
 from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task", "safety"}
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task", "safety", "reflex"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -87,6 +88,7 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     planner = {**(REALTIME_PLANNER if realtime else {}), **(config.get("planner") or {})}
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(planner),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
+                           reflex=ReflexSettings.from_dict(config.get("reflex") or {}),
                            **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config},
                            **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))
     settings.check()
@@ -114,8 +116,8 @@ def _one(args) -> dict:
     task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
     belief = Belief(**belief_dict) if belief_dict else None
     r = run_task(task, belief, settings)
-    return {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "fell": r.fell,
-            "control_hz": r.control_hz, "setting": setting}
+    return {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "control_hz": r.control_hz,
+            "setting": setting}
 
 
 def parse_sweep(text: str) -> tuple[str, list]:
@@ -317,7 +319,8 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
 
 
 def summarise(rows: list[dict], modes, settings=("",)) -> list[dict]:
-    """Per setting and mode: n, S_R [%], and mean ± std of e_g, J, t_exec, rmse (the paper's Table I).
+    """Per setting and mode: n, S_R [%], falls, recoveries, and mean ± std of e_g, J, t_exec, rmse (the
+    paper's Table I, with the falls counted).
 
     ``settings``: the sweep labels in order (``("",)`` outside a sweep); each table row carries its ``setting``.
     """
@@ -331,8 +334,11 @@ def summarise(rows: list[dict], modes, settings=("",)) -> list[dict]:
 
 
 def _stats(sel: list[dict], m: str) -> dict:
-    """n, S_R [%] and (mean, std) of e_g, J, t_exec, rmse over the rows ``sel`` of mode ``m``."""
-    row = {"mode": m, "n": len(sel), "S_R": 100.0 * float(np.mean([r["success"] for r in sel]))}
+    """n, S_R [%], falls, fall-prevention recoveries and (mean, std) of e_g, J, t_exec, rmse over the rows
+    ``sel`` of mode ``m``."""
+    row = {"mode": m, "n": len(sel), "S_R": 100.0 * float(np.mean([r["success"] for r in sel])),
+           "falls": int(sum(bool(r.get("fell")) for r in sel)),
+           "recoveries": int(sum(int(r.get("recoveries", 0)) for r in sel))}
     for k in ("e_g", "J", "t_exec", "rmse"):
         v = np.array([r[k] for r in sel], dtype=float)
         row[k] = (float(v.mean()), float(v.std()))

@@ -20,9 +20,14 @@ from amhe_cli.errors import AmheError
 
 #: Columns of an evaluation CSV, in order; ``setting`` is the swept setting of the run (``mhe.samples=6``),
 #: empty outside a sweep.
-ROW_KEYS = ("task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "control_hz", "setting")
+ROW_KEYS = ("task", "mode", "seed", "success", "e_g", "J", "t_exec", "rmse", "fell", "recoveries", "control_hz",
+            "setting")
+#: Headers of earlier amhe versions that :func:`read_rows` still reads: before the fall reflex's
+#: ``recoveries`` (read as 0), and before sweeps (no ``setting``).
+_LEGACY_KEYS = (tuple(k for k in ROW_KEYS if k != "recoveries"),
+                tuple(k for k in ROW_KEYS if k not in ("recoveries", "setting")))
 _TYPES = {"task": str, "mode": str, "seed": int, "success": lambda v: v == "True", "fell": lambda v: v == "True",
-          "setting": str}
+          "recoveries": int, "setting": str}
 
 
 def read_rows(path: str | os.PathLike) -> list[dict]:
@@ -45,7 +50,7 @@ def read_rows(path: str | os.PathLike) -> list[dict]:
     if header is None:
         return []
     keys = tuple(header)
-    if keys not in (ROW_KEYS, ROW_KEYS[:-1]):  # files from before sweeps have no setting column
+    if keys != ROW_KEYS and keys not in _LEGACY_KEYS:
         raise AmheError(f"{path}: not an amhe evaluate CSV (columns {', '.join(header)}; expected "
                         f"{', '.join(ROW_KEYS)})")
     rows = []
@@ -53,7 +58,7 @@ def read_rows(path: str | os.PathLike) -> list[dict]:
         if len(values) != len(keys):
             raise AmheError(f"{path}, line {i}: {len(values)} values, expected {len(keys)}")
         try:
-            rows.append({"setting": "", **{k: _TYPES.get(k, float)(v) for k, v in zip(keys, values)}})
+            rows.append({"setting": "", "recoveries": 0, **{k: _TYPES.get(k, float)(v) for k, v in zip(keys, values)}})
         except ValueError:
             raise AmheError(f"{path}, line {i}: a value does not parse: {values}") from None
     return rows

@@ -1,0 +1,147 @@
+"""Fall prevention: stop pushing and recover the stand before the safety layer has to damp.
+
+A sampling planner with a 0.4 s horizon does not see a fall coming until it is
+under way. Read from recorded falls (``benchmarks/fall_forensics.py``, T2 in the
+lock-step sim): the trunk pitched from 7° to 30° in 0.4 s while the robot ran at
+0.5–0.8 m/s, three times its command, and its head struck the floor; the run's
+fall test (base below 0.15 m) fired 2.5 s later. The safety layer of a real Go1
+(:mod:`~amhe_cli.plants.go1.safety`) trips to damping at 40° — a robot that lies
+down, not one that stays up.
+
+:class:`FallReflex` watches the measured trunk every cycle. When it leaves a
+safe envelope (tilt beyond :attr:`ReflexSettings.enter_tilt`, height over the
+floor below :attr:`ReflexSettings.enter_height`, or a roll/pitch rate beyond
+:attr:`ReflexSettings.enter_rate`), the closed loop replaces the task's command
+by :func:`recovery_command` — no walking, no pushing, the trunk level at the
+stand's height where it stands — and the planner tracks the ``stand`` gait with
+all four feet planted. Once the trunk has been back inside the tighter
+exit envelope for :attr:`ReflexSettings.settle` seconds, the task resumes (its
+approach phase first, if the robot lost the box meanwhile). A safety trip stays
+the last line, not the controller.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from amhe_cli.errors import AmheError, check_names
+
+
+@dataclass
+class ReflexSettings:
+    """The safe envelope of the trunk and the reflex's hysteresis (``reflex:`` in a run config).
+
+    Attributes:
+        enabled: False turns the reflex off (for comparison runs only).
+        enter_tilt: trunk tilt [rad] (angle between its z axis and the world's) that starts a recovery.
+            0.3 rad (17°): the walking robot's tilt stays under 0.2 rad; falls read
+            from the sim went past 0.3 rad 0.2–0.3 s before they were beyond saving.
+        enter_height: trunk height over the robot's floor [m] under which a recovery starts
+            (the trot stands at 0.265; the task's fall test is 0.15).
+        enter_rate: roll or pitch rate [rad/s] beyond which a recovery starts.
+        exit_tilt, exit_height, exit_rate: the envelope the trunk must be back inside ...
+        settle: ... for this long [s] before the task resumes.
+    """
+
+    enabled: bool = True
+    enter_tilt: float = 0.3
+    enter_height: float = 0.19
+    enter_rate: float = 3.0
+    exit_tilt: float = 0.12
+    exit_height: float = 0.23
+    exit_rate: float = 0.8
+    settle: float = 0.4
+
+    def check(self) -> None:
+        """Raise :class:`AmheError` for an envelope that cannot work (exit looser than enter)."""
+        if not (0 < self.exit_tilt < self.enter_tilt and 0 < self.enter_height < self.exit_height
+                and 0 < self.exit_rate < self.enter_rate and self.settle >= 0):
+            raise AmheError(f"reflex settings {asdict(self)}: expected 0 < exit_tilt < enter_tilt, "
+                            "0 < enter_height < exit_height, 0 < exit_rate < enter_rate, settle >= 0")
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ReflexSettings":
+        check_names(d, {f.name for f in fields(cls)}, "reflex setting")
+        return cls(**{k: (bool(v) if k == "enabled" else float(v)) for k, v in d.items()})
+
+
+def trunk_tilt(quat: np.ndarray) -> np.ndarray:
+    """(...) angle [rad] between the trunk's z axis and world z, for (..., 4) (w, x, y, z) quaternions."""
+    q = np.asarray(quat, dtype=float)
+    return np.arccos(np.clip(1.0 - 2.0 * (q[..., 1] ** 2 + q[..., 2] ** 2), -1.0, 1.0))
+
+
+class FallReflex:
+    """Hysteresis between pushing and recovering the stand, on the measured trunk.
+
+    Args:
+        settings: :class:`ReflexSettings`.
+        floor: z of the robot's floor [m].
+
+    Attributes:
+        active: True while recovering.
+        recoveries: recoveries started so far.
+    """
+
+    def __init__(self, settings: ReflexSettings | None = None, floor: float = 0.0):
+        self.settings = s = settings or ReflexSettings()
+        s.check()
+        self.floor = float(floor)
+        self.active = False
+        self.recoveries = 0
+        self._inside_since: float | None = None
+
+    def update(self, t: float, base_pos: np.ndarray, base_quat: np.ndarray, base_angvel: np.ndarray) -> str | None:
+        """Feed one measurement; returns a message when the reflex starts or ends a recovery, else None.
+
+        Args:
+            t: time [s].
+            base_pos: (3,) trunk position [m]; base_quat: (4,) (w, x, y, z);
+            base_angvel: (3,) body-frame angular velocity [rad/s].
+        """
+        s = self.settings
+        if not s.enabled:
+            return None
+        tilt = float(trunk_tilt(base_quat))
+        height = float(base_pos[2]) - self.floor
+        rate = float(np.max(np.abs(base_angvel[:2])))
+        if not self.active:
+            why = []
+            if tilt > s.enter_tilt:
+                why.append(f"trunk tilt {np.degrees(tilt):.0f}° > {np.degrees(s.enter_tilt):.0f}°")
+            if height < s.enter_height:
+                why.append(f"trunk height {height:.3f} m < {s.enter_height:.2f} m")
+            if rate > s.enter_rate:
+                why.append(f"roll/pitch rate {rate:.1f} rad/s > {s.enter_rate:.1f}")
+            if why:
+                self.active, self._inside_since = True, None
+                self.recoveries += 1
+                return f"fall prevention: {', '.join(why)}; stop pushing, recovering the stand"
+            return None
+        inside = tilt < s.exit_tilt and height > s.exit_height and rate < s.exit_rate
+        if not inside:
+            self._inside_since = None
+            return None
+        if self._inside_since is None:
+            self._inside_since = t
+        if t - self._inside_since >= s.settle - 1e-9:
+            self.active = False
+            return f"fall prevention: trunk level again (tilt {np.degrees(tilt):.0f}°); resuming the task"
+        return None
+
+
+def recovery_command(cmd: dict, base_xy: np.ndarray, base_yaw: float) -> dict:
+    """The task command ``cmd`` turned into a recovery: stand where the robot is, heading as it is, box held.
+
+    Returns:
+        a copy of ``cmd`` with ``waypoint`` the trunk's position, ``yaw`` its
+        heading, ``speed`` and ``omega`` 0, ``box_speed`` 0 (the box's reference
+        stays where the box is), no ``reach``, and ``phase`` ``"recover"``.
+    """
+    out = {k: v for k, v in cmd.items() if k != "reach"}
+    out.update(waypoint=np.asarray(base_xy, dtype=float).copy(), yaw=float(base_yaw), speed=0.0, omega=0.0,
+               box_speed=0.0, phase="recover")
+    return out
+

@@ -1,0 +1,111 @@
+"""Why the closed loop falls: lock-step sim runs, and for every fall the trunk's last seconds.
+
+Runs tasks × modes × seeds of ``amhe run --target sim`` (one rollout thread each, in
+worker processes) and prints one JSON line per run as it finishes: the run's metrics,
+whether it fell, the fall-prevention reflex's recoveries, and for a fall a timeline of
+its last ``--before`` seconds every 0.1 s — trunk height over the floor, roll and
+pitch [deg], yaw rate [rad/s], forward speed [m/s], the box's position in the trunk
+frame [m] and the feet on the floor — so the cause can be read, not guessed. The last
+lines are a table: runs, falls, recoveries, S_R per (task, mode).
+
+    python benchmarks/fall_forensics.py --tasks t2,t3 --modes true,adaptive --seeds 8 --jobs 16 [--out runs.jsonl]
+
+Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor, as_completed
+
+import numpy as np
+
+from amhe_cli.control.closed_loop import run_task
+from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
+from amhe_cli.estimation.belief import Belief
+from amhe_cli.io.quat import quat_to_yaw, world_to_body
+from amhe_cli.model.scene import Scene, SceneConfig
+
+
+def timeline(result, before: float) -> list[dict]:
+    """The trunk's last ``before`` seconds of a run's recording, every 0.1 s."""
+    tr = result.traj
+    cfg = tr.meta["scene"]
+    scene = Scene(SceneConfig.from_dict(cfg))
+    floor = scene.config.robot_floor
+    qpos = np.concatenate([tr.base_pos, tr.base_quat, tr.joint_pos, tr.box_pos, tr.box_quat], axis=1)
+    keep = np.where(tr.t >= tr.t[-1] - before)[0][::50]
+    feet = scene.foot_bottoms(qpos[keep]) - floor < 0.01
+    q = tr.base_quat[keep]
+    w, x, y, z = q.T
+    roll = np.degrees(np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
+    pitch = np.degrees(np.arcsin(np.clip(2 * (w * y - z * x), -1, 1)))
+    rel = world_to_body(q, tr.box_pos[keep] - tr.base_pos[keep])
+    yaw = quat_to_yaw(q)
+    fwd = tr.base_linvel[keep, 0] * np.cos(yaw) + tr.base_linvel[keep, 1] * np.sin(yaw)
+    return [{"t": round(float(tr.t[i]), 2), "h": round(float(tr.base_pos[i, 2] - floor), 3),
+             "roll": round(float(roll[j]), 1), "pitch": round(float(pitch[j]), 1),
+             "wz": round(float(tr.base_angvel[i, 2]), 2), "v": round(float(fwd[j]), 2),
+             "box": [round(float(v), 2) for v in rel[j]], "feet": "".join("x" if f else "." for f in feet[j])}
+            for j, i in enumerate(keep)]
+
+
+def one(args) -> dict:
+    task_name, mode, seed, config, belief, before, duration = args
+    task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
+    r = run_task(task, Belief(**belief) if belief else None, settings)
+    row = {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "control_hz": round(r.control_hz, 2),
+           "warnings": [w for w in r.warnings if "lost the box" not in w][:6]}
+    if r.fell or r.failure:
+        row["timeline"] = timeline(r, before)
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tasks", default="t2")
+    ap.add_argument("--modes", default="true,adaptive")
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--first-seed", type=int, default=0)
+    ap.add_argument("--jobs", type=int, default=os.cpu_count())
+    ap.add_argument("--config", default=None, help="run config YAML (as amhe run --config)")
+    ap.add_argument("--duration", type=float, default=None, help="time limit per run [s] (default: the task's)")
+    ap.add_argument("--before", type=float, default=2.0, help="seconds of timeline before a fall")
+    ap.add_argument("--out", default=None, help="append each run's JSON line here too")
+    a = ap.parse_args()
+    config = load_config(a.config)
+    tasks, modes = a.tasks.split(","), a.modes.split(",")
+    beliefs = {}
+    if set(modes) - {"true"}:
+        for t in tasks:
+            task, _ = run_settings(t, "adaptive", config)
+            beliefs[t] = probe_belief(task, seed=0, threads=min(a.jobs, 4)).__dict__
+    jobs = [(t, m, s, config, beliefs.get(t) if m != "true" else None, a.before, a.duration)
+            for s in range(a.first_seed, a.first_seed + a.seeds) for t in tasks for m in modes]
+    rows = []
+    out = open(a.out, "a") if a.out else None
+    with ProcessPoolExecutor(max_workers=a.jobs) as pool:
+        for fut in as_completed([pool.submit(one, j) for j in jobs]):
+            row = fut.result()
+            rows.append(row)
+            line = json.dumps(row, default=float)
+            print(line, flush=True)
+            if out:
+                out.write(line + "\n")
+                out.flush()
+    print(f"{'task':5} {'mode':9} {'runs':>4} {'falls':>5} {'recov':>5} {'S_R %':>6} {'e_g med':>7}")
+    for t in tasks:
+        for m in modes:
+            sel = [r for r in rows if r["task"] == t and r["mode"] == m]
+            if sel:
+                print(f"{t:5} {m:9} {len(sel):4d} {sum(r['fell'] for r in sel):5d} "
+                      f"{sum(r['recoveries'] for r in sel):5d} {100 * np.mean([r['success'] for r in sel]):6.1f} "
+                      f"{np.median([r['e_g'] for r in sel]):7.3f}")
+    print(f"falls={sum(r['fell'] for r in rows)} runs={len(rows)}", file=sys.stdout)
+
+
+if __name__ == "__main__":
+    main()

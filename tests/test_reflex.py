@@ -1,0 +1,119 @@
+"""The fall-prevention reflex: its envelope trips, holds, releases, and in the closed loop stops the task."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from amhe_cli.control.closed_loop import RunSettings, make_plant, run_task
+from amhe_cli.control.evaluate import run_settings
+from amhe_cli.control.planner import PlannerSettings
+from amhe_cli.control.reflex import FallReflex, ReflexSettings, recovery_command, trunk_tilt
+from amhe_cli.control.tasks import get_task
+from amhe_cli.errors import AmheError
+from amhe_cli.io.quat import quat_from_rotvec
+
+LEVEL = np.array([1.0, 0.0, 0.0, 0.0])
+UP = np.array([0.0, 0.0, 0.265])
+STILL = np.zeros(3)
+
+
+def tilted(rad: float, axis=(1.0, 0.0, 0.0)) -> np.ndarray:
+    return quat_from_rotvec(np.asarray(axis) * rad)
+
+
+def test_trunk_tilt_is_the_angle_from_vertical_whatever_the_yaw():
+    assert trunk_tilt(LEVEL) == pytest.approx(0.0)
+    assert trunk_tilt(tilted(0.3)) == pytest.approx(0.3)
+    assert trunk_tilt(tilted(0.3, (0.0, 1.0, 0.0))) == pytest.approx(0.3)
+    assert trunk_tilt(tilted(1.2, (0.0, 0.0, 1.0))) == pytest.approx(0.0, abs=1e-7)
+
+
+def test_a_level_trunk_never_trips():
+    r = FallReflex()
+    for k in range(100):
+        assert r.update(0.02 * k, UP, tilted(0.15), np.array([0.5, -0.5, 2.0])) is None
+    assert not r.active and r.recoveries == 0
+
+
+@pytest.mark.parametrize("pos, quat, angvel, why", [
+    (UP, tilted(0.35), STILL, "trunk tilt 20°"),
+    (UP, tilted(0.35, (0.0, 1.0, 0.0)), STILL, "trunk tilt 20°"),
+    (np.array([0.0, 0.0, 0.17]), LEVEL, STILL, "trunk height 0.170 m"),
+    (UP, LEVEL, np.array([0.0, 3.5, 0.0]), "roll/pitch rate 3.5"),
+])
+def test_leaving_the_envelope_starts_a_recovery_and_says_why(pos, quat, angvel, why):
+    r = FallReflex()
+    text = r.update(0.0, pos, quat, angvel)
+    assert r.active and r.recoveries == 1
+    assert why in text and "recovering the stand" in text
+
+
+def test_a_recovery_ends_only_after_the_trunk_settles_inside_the_tighter_envelope():
+    s = ReflexSettings(settle=0.4)
+    r = FallReflex(s)
+    r.update(0.0, UP, tilted(0.4), STILL)
+    # between the two envelopes (0.2 rad: inside enter, outside exit) it stays in recovery
+    for k in range(1, 50):
+        assert r.update(0.02 * k, UP, tilted(0.2), STILL) is None and r.active
+    # level again: ends after `settle`, not before; a wobble restarts the count
+    assert r.update(1.00, UP, LEVEL, STILL) is None and r.active
+    assert r.update(1.30, UP, LEVEL, STILL) is None and r.active
+    assert r.update(1.32, UP, LEVEL, np.array([1.0, 0.0, 0.0])) is None and r.active
+    assert r.update(1.50, UP, LEVEL, STILL) is None and r.active
+    text = r.update(1.90, UP, LEVEL, STILL)
+    assert not r.active and "resuming the task" in text
+    assert r.recoveries == 1
+    r.update(2.0, UP, tilted(0.5), STILL)
+    assert r.active and r.recoveries == 2
+
+
+def test_a_disabled_reflex_never_trips():
+    r = FallReflex(ReflexSettings(enabled=False))
+    assert r.update(0.0, np.array([0.0, 0.0, 0.05]), tilted(1.0), np.full(3, 9.0)) is None
+    assert not r.active
+
+
+def test_an_envelope_whose_exit_is_looser_than_its_entry_is_refused():
+    with pytest.raises(AmheError, match="exit_tilt < enter_tilt"):
+        FallReflex(ReflexSettings(enter_tilt=0.2, exit_tilt=0.3))
+    with pytest.raises(AmheError, match="unknown reflex setting"):
+        ReflexSettings.from_dict({"tilt": 0.3})
+    with pytest.raises(AmheError, match="reflex setting"):
+        run_settings("t1", "true", {"reflex": {"enter_tilt": 0.1, "exit_tilt": 0.2}})
+
+
+def test_recovery_command_stands_where_the_robot_is_and_holds_the_box():
+    cmd = get_task("t1").command(np.array([0.0, 0.0]), 0.0, np.array([0.52, 0.0]), 0.19)
+    rec = recovery_command({**cmd, "reach": {"foot": np.zeros(3)}}, np.array([0.1, -0.2]), 0.3)
+    assert rec["phase"] == "recover" and rec["speed"] == 0.0 and rec["omega"] == 0.0 and rec["box_speed"] == 0.0
+    np.testing.assert_array_equal(rec["waypoint"], [0.1, -0.2])
+    assert rec["yaw"] == 0.3 and "reach" not in rec
+    assert cmd["phase"] == "push" and cmd["speed"] > 0  # the task's own command is not changed
+
+
+def test_a_shoved_robot_stops_pushing_recovers_the_stand_and_resumes():
+    """A roll-rate kick of 4 rad/s at the start (a shove) trips the reflex: the loop stands the robot up
+    (no walking: the trunk stays within 3 cm where the unshoved robot trots 8+ cm off in the same time),
+    levels it, resumes the task, and it never falls."""
+    task = get_task("t1", duration=1.2)
+    settings = RunSettings(mode="true", planner=PlannerSettings(samples=8, horizon=20), threads=1)
+    runs = []
+    for kick in (4.0, 0.0):
+        plant = make_plant(task, settings.kp, settings.kd, settings.planner.dt, cycle=settings.cycle)
+        qvel = np.zeros(plant.model.nv)
+        qvel[plant.scene.base_qvel[3:]] = [kick, 0.0, 0.0]
+        plant.reset(plant.data.qpos.copy(), qvel)
+        runs.append(run_task(task, None, settings, plant=plant))
+    shoved, calm = runs
+    assert shoved.recoveries == 1 and not shoved.fell and calm.recoveries == 0
+    assert any("fall prevention" in w and "roll/pitch rate 4.0" in w for w in shoved.warnings)
+    assert shoved.metrics()["recoveries"] == 1 and shoved.metrics()["fell"] is False
+    (end,) = [float(m.split("t=")[1].split(" s")[0]) for m in shoved.messages if "resuming the task" in m]
+    assert 0.4 <= end < 1.2
+    during = shoved.traj.t <= end
+    moved = np.linalg.norm(shoved.traj.base_pos[during, :2] - shoved.traj.base_pos[0, :2], axis=1).max()
+    trotted = np.linalg.norm(calm.traj.base_pos[calm.traj.t <= end, :2] - calm.traj.base_pos[0, :2], axis=1).max()
+    assert moved < 0.03 and trotted > 0.08
+    assert np.degrees(trunk_tilt(shoved.traj.base_quat[during][-1])) < 5  # level again when it resumed
+
