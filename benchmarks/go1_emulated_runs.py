@@ -1,21 +1,31 @@
-"""`amhe run --target go1` against `amhe emulate go1`, repeated: how often the box gets there and the robot stays up.
+"""`amhe run --target go1` against `amhe emulate go1`: S_R, falls, e_g, replanning rate and MHE error, per task and mode.
 
-Each run starts the emulator of the task on 127.0.0.1 (1 mm / 0.2° mocap
-noise, 3 ms latency: its defaults) and the client as a user would:
+Each run starts the emulator of the task on 127.0.0.1 (1 mm / 0.2° mocap noise,
+3 ms latency: its defaults) and the client as a user would:
 
     amhe run --task T --target go1 --robot 127.0.0.1:PORT --mocap udp:PORT --mode MODE --arm --json --duration D
 
-and reads the client's JSON and exit code. ``--parallel N`` runs N pairs at
-once, each pinned with ``taskset`` to its own ``--cores`` CPUs (a many-core
-machine standing in for N two-core laptops); the default runs one at a time.
-Prints one line per run and a summary: runs with the box within 1.0 m of the
-goal (the task's start is 1.48 m away for T1), falls, safety trips, median e_g;
-in adaptive mode on a task whose box does not change (T1, T2, T5), also the
-online MHE's last estimate against the emulator's truth (median and 90th
-percentile of the mass error [%] and the friction error).
+both pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a many-core
+machine standing in for several robot laptops); ``--parallel`` pairs run at once
+(default: as many as the CPUs hold). The same seeds run in every mode, so rows
+pair. One JSON line per run as it finishes (also appended to ``--jsonl``), then
+one row per (task, mode):
 
-    python benchmarks/go1_emulated_runs.py [--runs 5] [--task t1] [--mode adaptive] [--duration 20] [--parallel 1]
-                                           [--config run.yaml] [--pose-noise 0.001,0.2deg]
+* S_R [%] (the client's success: box within the task's radius, no fall, no trip),
+  falls (the client's fall test or a safety layer's tilt trip), fall-prevention
+  recoveries, other safety trips, e_g mean ± std [m], the planner's replanning rate
+  (median over runs, Hz);
+* the online MHE's error after each change of the world (T3's mass switch, T4's
+  friction step; the emulator prints when each fires and the client's recording
+  holds its own start on the same monotonic clock): from 3 s after the change to
+  the next one, the worst |mass error| [%] and |μ error| of the planner's
+  estimates, and in how many runs they stayed within 10 % and 0.05 (``seg1``,
+  ``seg2``…); ``seg0`` is the estimate in force when the first change came (or,
+  without one, the last estimate). Baseline rows show
+  the fixed belief's error against the changed world.
+
+    python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
+                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg]
 """
 
 from __future__ import annotations
@@ -23,18 +33,25 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import socket
 import subprocess
 import sys
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from queue import Queue
 
 import numpy as np
+from mcap.reader import make_reader
 
 from amhe_cli.control.tasks import get_task
 from amhe_cli.io.reader import read_float_arrays
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
+#: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
+SETTLE = 3.0
 
 
 def free_port() -> int:
@@ -43,80 +60,180 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def one_run(k: int, args, cores: list[int] | None, out_dir: str) -> dict:
+def run_meta(path: str) -> dict:
+    """The ``amhe_run`` metadata record of a run's MCAP ({} if unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            for rec in make_reader(fh).iter_metadata():
+                if rec.name == "amhe_run":
+                    return dict(rec.metadata)
+    except Exception:  # noqa: BLE001 - a run cut off before its recording closed
+        pass
+    return {}
+
+
+def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> list[dict]:
+    """Per segment of constant truth (the start, then after each fired event): the worst estimate error
+    from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic)."""
+    try:
+        t, est, labels = read_float_arrays(recording, "/amhe/estimate")
+    except Exception:  # noqa: BLE001 - no estimate recorded
+        return []
+    if not len(t):
+        return []
+    truth = dict(task.truth)
+    segments, start = [], 0.0
+    changes = sorted((mono - t0, p, v) for p, v, mono in events) if t0 is not None else []
+    run_end = float(t[-1])
+    for k in range(len(changes) + 1):
+        end = changes[k][0] if k < len(changes) else np.inf
+        segments.append((start, end, dict(truth)))
+        if k < len(changes):
+            start = changes[k][0]
+            truth[changes[k][1]] = changes[k][2]
+    out = []
+    for i, (a, b, tr) in enumerate(segments):
+        if i == 0:  # before any change: the estimate in force when the world changes (or at the end)
+            idx = np.where(t < min(b, run_end + 1))[0][-1:]
+            lo = a
+        else:  # the estimates in force over [change + SETTLE, next change): the last swap before, every later one
+            lo = a + SETTLE
+            if lo >= min(b, run_end):
+                continue
+            before = np.where(t < lo)[0]
+            idx = np.r_[before[-1:], np.where((t >= lo) & (t < b))[0]].astype(int)
+        if not len(idx):
+            continue
+        mass = est[idx, labels.index("box_mass")]
+        mu = est[idx, labels.index("box_friction")]
+        out.append({"from": round(lo, 2), "to": round(min(b, run_end), 2),
+                    "mass_err_pct": round(float(np.max(np.abs(100 * (mass / tr["box_mass"] - 1)))), 1),
+                    "mu_err": round(float(np.max(np.abs(mu - tr["box_friction"]))), 3)})
+    return out
+
+
+def one_run(task_name: str, mode: str, seed: int, args, cores: list[int] | None) -> dict:
     pin = ["taskset", "-c", ",".join(map(str, cores))] if cores else []
     pose = free_port()
-    recording = os.path.join(out_dir, f"go1_{k}.mcap")
-    emu = subprocess.Popen(pin + AMHE + ["emulate", "go1", "--task", args.task, "--port", "0", "--pose-to",
-                                         f"127.0.0.1:{pose}", "--duration", str(args.duration + 20), "--seed", str(k),
-                                         "--pose-noise", args.pose_noise],
+    recording = os.path.join(args.out_dir, f"go1_{task_name}_{mode}_s{seed}.mcap")
+    emu = subprocess.Popen(pin + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
+                                         f"127.0.0.1:{pose}", "--duration", str(args.duration + 30), "--seed",
+                                         str(seed), "--pose-noise", args.pose_noise],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    lines: Queue = Queue()
+    reader = threading.Thread(target=lambda: [lines.put(x) for x in emu.stdout], daemon=True)
+    reader.start()
+    proc = None
     try:
-        port = int(emu.stdout.readline().split("udp://127.0.0.1:")[1].split(",")[0])
+        first = lines.get(timeout=60)
+        port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
         t0 = time.monotonic()
-        proc = subprocess.run(pin + AMHE + ["run", "--task", args.task, "--target", "go1", "--robot",
+        proc = subprocess.run(pin + AMHE + ["run", "--task", task_name, "--target", "go1", "--robot",
                                             f"127.0.0.1:{port}", "--local-port", "0", "--mocap", f"udp:127.0.0.1:{pose}",
-                                            "--mode", args.mode, "--arm", "--json", "--duration", str(args.duration),
-                                            "--seed", str(k), "--out", recording, "--force",
+                                            "--mode", mode, "--arm", "--json", "--duration", str(args.duration),
+                                            "--seed", str(seed), "--out", recording, "--force",
                                             *(["--config", args.config] if args.config else [])],
-                              capture_output=True, text=True, timeout=args.duration + 120)
+                              capture_output=True, text=True, timeout=args.duration + 180)
         wall = time.monotonic() - t0
     finally:
         emu.terminate()
         emu.wait(10)
+        reader.join(5)
+    events = []
+    while not lines.empty():
+        m = EVENT.search(lines.get())
+        if m:
+            events.append((m.group(1), float(m.group(2)), float(m.group(4))))
     try:
         res = json.loads(proc.stdout.strip().splitlines()[-1])
-    except (IndexError, json.JSONDecodeError):
-        res = {"failure": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else "no output"}
-    res.update(run=k, rc=proc.returncode, wall_s=round(wall, 1))
-    task = get_task(args.task)
-    if args.mode == "adaptive" and not task.events and os.path.exists(recording):
-        try:
-            _, est, labels = read_float_arrays(recording, "/amhe/estimate")
-        except Exception:  # noqa: BLE001 - a run cut off before its first estimate
-            est = None
-        if est is not None and len(est):
-            mass, mu = est[-1, labels.index("box_mass")], est[-1, labels.index("box_friction")]
-            res.update(mass_err_pct=round(100 * (mass / task.truth["box_mass"] - 1), 1),
-                       mu_err=round(float(mu - task.truth["box_friction"]), 3))
+    except (IndexError, json.JSONDecodeError, AttributeError):
+        res = {"failure": proc.stderr.strip().splitlines()[-1] if proc and proc.stderr.strip() else "no output"}
+    text = f"{res.get('failure', '')} {res.get('reason', '')}"
+    res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
+               fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
+               trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
+    meta = run_meta(recording)
+    if "control_hz" in meta:
+        res["control_hz"] = round(float(meta["control_hz"]), 1)
+    t0_run = float(meta["monotonic_t0"]) if "monotonic_t0" in meta else None
+    res["events"] = [{"param": p, "value": v, "t": round(mono - t0_run, 2) if t0_run else None}
+                     for p, v, mono in events]
+    res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run)
     return res
+
+
+def table(rows: list[dict], tasks, modes) -> None:
+    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, replanning rate, MHE after each change."""
+    print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
+          f"{'e_g mean ± std [m]':>19} {'Hz':>5}  MHE from 3 s after each change: worst |mass err| / |μ err|, "
+          "runs within 10 % / 0.05")
+    for t in tasks:
+        for m in modes:
+            sel = [r for r in rows if r["task"] == t and r["mode"] == m]
+            if not sel:
+                continue
+            e_g = np.array([r.get("e_g", np.nan) for r in sel], dtype=float)
+            hz = [r["control_hz"] for r in sel if "control_hz" in r]
+            segs = []
+            nseg = max((len(r["mhe"]) for r in sel), default=0)
+            for k in range(nseg):
+                got = [r["mhe"][k] for r in sel if len(r["mhe"]) > k]
+                mass = np.array([g["mass_err_pct"] for g in got])
+                mu = np.array([g["mu_err"] for g in got])
+                segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 10))}/{len(got)} "
+                            f"/ {int(np.sum(mu <= 0.05))}/{len(got)}")
+            print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "
+                  f"{sum(r['fell'] for r in sel):5d} {sum(int(r.get('recoveries', 0)) for r in sel):5d} "
+                  f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
+                  f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f}   {np.median(hz) if hz else float('nan'):5.1f}  "
+                  + "; ".join(segs))
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--task", default="t1")
-    ap.add_argument("--mode", default="adaptive")
+    ap.add_argument("--tasks", default="t1")
+    ap.add_argument("--modes", default="adaptive")
+    ap.add_argument("--seeds", type=int, default=5)
+    ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=20.0)
-    ap.add_argument("--parallel", type=int, default=1)
-    ap.add_argument("--cores", type=int, default=2, help="CPUs per pair when --parallel > 1")
+    ap.add_argument("--cores-per-run", type=int, default=2, help="CPUs each emulator + client pair is pinned to")
+    ap.add_argument("--parallel", type=int, default=None, help="pairs at once (default: CPUs // --cores-per-run)")
     ap.add_argument("--out-dir", default=".")
+    ap.add_argument("--jsonl", default=None, help="append each run's JSON line here as it finishes")
     ap.add_argument("--config", default=None, help="run config YAML passed to amhe run")
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
     args = ap.parse_args()
-    ncpu = os.cpu_count() or 1
-    cores = [None] * args.runs if args.parallel <= 1 else \
-        [[(k % args.parallel) * args.cores + c for c in range(args.cores)] for k in range(args.runs)]
-    if args.parallel > 1 and args.parallel * args.cores > ncpu:
-        sys.exit(f"--parallel {args.parallel} x --cores {args.cores} needs {args.parallel * args.cores} CPUs, "
-                 f"this machine has {ncpu}")
-    with ThreadPoolExecutor(max(1, args.parallel)) as pool:
-        results = []
-        for res in pool.map(lambda k: one_run(k, args, cores[k], args.out_dir), range(args.runs)):
-            results.append(res)
-            print(json.dumps(res), flush=True)
-    e_g = np.array([r.get("e_g", np.nan) for r in results], dtype=float)
-    fell = [r for r in results if "tilt" in str(r.get("failure", "")) or r.get("fell")]
-    within = int(np.sum(e_g <= 1.0))
-    print(f"{args.task} {args.mode}, {args.runs} runs of {args.duration:g} s: box within 1.0 m of the goal in {within}, "
-          f"without a fall or trip in {sum(r['rc'] == 0 for r in results)}, safety trips {len(fell)}; "
-          f"e_g median {np.nanmedian(e_g):.3f} m")
-    mass = np.abs([r["mass_err_pct"] for r in results if "mass_err_pct" in r])
-    mu = np.abs([r["mu_err"] for r in results if "mu_err" in r])
-    if len(mass):
-        print(f"online MHE, last estimate of {len(mass)} runs: |mass error| median {np.median(mass):.1f} %, "
-              f"90th percentile {np.percentile(mass, 90):.1f} %; |friction error| median {np.median(mu):.3f}, "
-              f"90th percentile {np.percentile(mu, 90):.3f}")
+    ncpu = len(os.sched_getaffinity(0))
+    parallel = args.parallel or max(1, ncpu // args.cores_per_run)
+    if parallel * args.cores_per_run > ncpu:
+        sys.exit(f"--parallel {parallel} x --cores-per-run {args.cores_per_run} needs {parallel * args.cores_per_run} "
+                 f"CPUs, this machine has {ncpu}")
+    cpus = sorted(os.sched_getaffinity(0))
+    slots: Queue = Queue()
+    for k in range(parallel):
+        slots.put(cpus[k * args.cores_per_run:(k + 1) * args.cores_per_run])
+    tasks, modes = args.tasks.split(","), args.modes.split(",")
+    jobs = [(t, m, s) for s in range(args.first_seed, args.first_seed + args.seeds) for t in tasks for m in modes]
+
+    def job(t, m, s):
+        cores = slots.get()
+        try:
+            return one_run(t, m, s, args, cores)
+        finally:
+            slots.put(cores)
+
+    rows = []
+    out = open(args.jsonl, "a") if args.jsonl else None
+    with ThreadPoolExecutor(parallel) as pool:
+        for fut in as_completed([pool.submit(job, *j) for j in jobs]):
+            row = fut.result()
+            rows.append(row)
+            line = json.dumps(row)
+            print(line, flush=True)
+            if out:
+                out.write(line + "\n")
+                out.flush()
+    table(rows, tasks, modes)
 
 
 if __name__ == "__main__":

@@ -296,15 +296,42 @@ def test_task_events_fire_on_the_emulated_plant():
     task = get_task("t1")
     plant = make_plant(task, 100.0, 4.0)
     events = [Event("box_mass", 6.5, t=0.1)]
-    emu = Go1Emulator(plant, events, host=LOOP, port=0)
+    emu = Go1Emulator(plant, events, host=LOOP, port=0, task_delay=0.0)
     box = plant.scene.box_body
     before = float(emu.model.body_mass[box])
+    emu._cmd = servo()  # a client servoing the motors: the task's clock runs
     emu.start()
     time.sleep(0.3)
     emu.stop()
     assert events == [] and before != 6.5
     assert emu.model.body_mass[box] == pytest.approx(6.5)       # the emulator's own model has it
     assert (emu.model.actuator_gainprm[:, 0] == 0).all()        # ... and still no position servos
+
+
+def test_a_timed_event_counts_from_the_clients_task_start_and_is_announced():
+    """T3's mass switch at 10 s is 10 s into the client's task (its first servo command, then its ramp), not
+    10 s after the emulator started, which a client may join late; each firing calls on_event."""
+    from amhe_cli.control.tasks import Event
+    plant = make_plant(get_task("t1"), 100.0, 4.0)
+    events, heard = [Event("box_mass", 6.5, t=0.02)], []
+    emu = Go1Emulator(plant, events, host=LOOP, port=0, task_delay=0.01,
+                      on_event=lambda t, ev, mono: heard.append((t, ev, mono)))
+    try:
+        for _ in range(20):  # 40 ms with no command, then damping: no task yet
+            emu._tick()
+        emu._cmd = damping()
+        for _ in range(10):
+            emu._tick()
+        assert events and not heard
+        emu._cmd = servo()
+        start = float(emu.data.time)
+        while events and emu.data.time < start + 1.0:
+            emu._tick()
+        (t, ev, mono), = heard
+        assert ev.param == "box_mass" and t == pytest.approx(start + 0.01 + 0.02, abs=0.0021)
+        assert abs(mono - time.monotonic()) < 5.0
+    finally:
+        emu.close()
 
 
 # --- record ------------------------------------------------------------------------------

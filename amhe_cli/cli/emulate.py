@@ -46,6 +46,13 @@ def parse_pose_noise(text: str) -> tuple[float, float]:
     return pos, rot
 
 
+def _say_event(t: float, event, monotonic: float) -> None:
+    """One stdout line per fired task event, with the machine's monotonic clock (benchmarks align runs by it)."""
+    click.echo(f"amhe emulate go1: event {event.param} -> {event.value:g} at t={t:.3f} s "
+               f"(monotonic {monotonic:.6f})")
+    sys.stdout.flush()
+
+
 @click.group("emulate")
 def emulate_cmd():
     """Emulate a robot on this machine, for testing the real-robot path without one."""
@@ -97,7 +104,7 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     plant = make_plant(t, _SCENE_KP, _SCENE_KD)
     emu = Go1Emulator(plant, list(t.events), host=host, port=port, pose_to=target, faults=fault_list,
                       record=record, base_body=base_body, box_body=box_body, pose_latency=pose_latency,
-                      pose_noise=noise, seed=seed, overwrite=force)
+                      pose_noise=noise, seed=seed, overwrite=force, on_event=_say_event)
     bh, bp = emu.address
     poses = (f"poses to udp://{target[0]}:{target[1]} ({base_body}, {box_body})" if target is not None
              else "poses off")

@@ -121,15 +121,17 @@ class SimPlant(Plant):
             fired += [(float(self.data.time), ev) for ev in self.fire_due(self.events)]
         return fired
 
-    def fire_due(self, events: list) -> list:
+    def fire_due(self, events: list, t: float | None = None) -> list:
         """Apply the task events of ``events`` that are due now (time or box x) to the plant.
 
         Args:
             events: pending :class:`~amhe_cli.control.tasks.Event` objects; the fired ones are removed.
+            t: the task's time [s] the events' times count in (default: the plant's own time).
         Returns:
             the fired events, in order.
         """
-        t, box_x = float(self.data.time), float(self.data.qpos[self.scene.box_qpos[0]])
+        t = float(self.data.time) if t is None else float(t)
+        box_x = float(self.data.qpos[self.scene.box_qpos[0]])
         fired = [ev for ev in events if ev.due(t, box_x)]
         for ev in fired:
             self.set_param(ev.param, ev.value)

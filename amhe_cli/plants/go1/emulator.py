@@ -199,7 +199,10 @@ class Go1Emulator:
             its start state); the emulator steps ``plant.data`` with its own
             copy of ``plant.model`` whose servos are zeroed.
         events: the task's pending events (a list; fired ones are removed), fired
-            with ``plant.fire_due`` every tick.
+            with ``plant.fire_due`` every tick. A timed event (T3's mass switch at 10 s)
+            counts in the *task's* time, as in the sim: from ``task_delay`` after the
+            first command that servos a motor (a client's ramp to the stand, then its task),
+            not from the emulator's start, which a client may join many seconds later.
         host, port: where to listen for LowCmd packets.
         pose_to: ``(host, port)`` of the pose stream, or None for no poses.
         faults: :class:`Fault` objects (or ``KIND@T`` strings).
@@ -210,6 +213,11 @@ class Go1Emulator:
         pose_noise: (position [m], rotation [rad]) noise std of the pose stream.
         seed: seed of the pose noise.
         overwrite: allow ``record`` to replace an existing file.
+        on_event: called as ``on_event(t, event, monotonic)`` from the emulator's loop when a task
+            event fires: its emulated time [s], the event, and ``time.monotonic()`` then (the clock a
+            client on this machine can align its own recording to).
+        task_delay: seconds from the first servo command to the task's time 0 (the client's
+            ramp to the stand: :class:`~amhe_cli.plants.go1.safety.SafetySettings` ``ramp_time``).
 
     Raises:
         AmheError: a plant whose step is not 2 ms, a bad fault, an existing
@@ -218,12 +226,16 @@ class Go1Emulator:
 
     def __init__(self, plant, events, host: str = "127.0.0.1", port: int = 0, pose_to=None, faults=(),
                  record=None, base_body: str = "Go1_body", box_body: str = "Box_body",
-                 pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False):
+                 pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False,
+                 on_event=None, task_delay: float = 2.0):
         dt = plant.model.opt.timestep
         if abs(dt - TICK) > 1e-9:
             raise AmheError(f"emulator plant steps at {dt * 1e3:g} ms: expected {TICK * 1e3:g} ms")
         self.plant = plant
         self.events = events if events is not None else []
+        self.on_event = on_event
+        self.task_delay = float(task_delay)
+        self._task_start: float | None = None  # emulated time of the task's time 0
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         self.base_body, self.box_body = str(base_body), str(box_body)
         s = plant.scene
@@ -431,8 +443,16 @@ class Go1Emulator:
         """One 2 ms step: faults, events, motor torques, physics, state out, poses out."""
         m, d = self.model, self.data
         self._update_faults()
-        if self.plant.fire_due(self.events):
+        if self._task_start is None and self._cmd is not None and \
+                np.any((np.asarray(self._cmd.mode)[:_NJ] == MODE_SERVO) & (np.asarray(self._cmd.kp)[:_NJ] > 0)):
+            self._task_start = float(d.time) + self.task_delay
+        task_t = -np.inf if self._task_start is None else float(d.time) - self._task_start
+        fired = self.plant.fire_due(self.events, t=task_t)
+        if fired:
             self.model = m = self._torque_model()
+            if self.on_event is not None:
+                for ev in fired:
+                    self.on_event(float(d.time), ev, time.monotonic())
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
         self._tau = motor_torques(self._cmd, q, dq, self.limit)
         d.qfrc_applied[:] = 0.0

@@ -329,7 +329,8 @@ class Go1Plant(Plant):
             measured_velocity={"base": True, "joint_states": True, "box": False},
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
                   "mocap": self.settings.mocap, "armed": self.settings.arm, "scene": self.scene.config.to_dict(),
-                  "warnings": []},
+                  # time 0 on this machine's monotonic clock: aligns the run with an emulator's event lines
+                  "monotonic_t0": self._t0, "warnings": []},
         ), raw
 
     def extras(self) -> dict:
