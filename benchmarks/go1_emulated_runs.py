@@ -77,8 +77,8 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
     from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic)."""
     try:
         t, est, labels = read_float_arrays(recording, "/amhe/estimate")
-    except Exception:  # noqa: BLE001 - no estimate recorded
-        return []
+    except Exception as exc:  # noqa: BLE001 - no estimate recorded: say why in the run's row
+        return [{"error": f"{type(exc).__name__}: {exc}"}]
     if not len(t):
         return []
     truth = dict(task.truth)
@@ -158,7 +158,10 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: list[int] | None)
     t0_run = float(meta["monotonic_t0"]) if "monotonic_t0" in meta else None
     res["events"] = [{"param": p, "value": v, "t": round(mono - t0_run, 2) if t0_run else None}
                      for p, v, mono in events]
-    res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run)
+    try:
+        res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run)
+    except Exception as exc:  # noqa: BLE001 - a benchmark row says what went wrong rather than ending the grid
+        res["mhe"] = [{"error": f"{type(exc).__name__}: {exc}"}]
     return res
 
 
@@ -175,9 +178,10 @@ def table(rows: list[dict], tasks, modes) -> None:
             e_g = np.array([r.get("e_g", np.nan) for r in sel], dtype=float)
             hz = [r["control_hz"] for r in sel if "control_hz" in r]
             segs = []
-            nseg = max((len(r["mhe"]) for r in sel), default=0)
+            ok = [[g for g in r["mhe"] if "error" not in g] for r in sel]
+            nseg = max((len(g) for g in ok), default=0)
             for k in range(nseg):
-                got = [r["mhe"][k] for r in sel if len(r["mhe"]) > k]
+                got = [g[k] for g in ok if len(g) > k]
                 mass = np.array([g["mass_err_pct"] for g in got])
                 mu = np.array([g["mu_err"] for g in got])
                 segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 10))}/{len(got)} "
