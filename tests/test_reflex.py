@@ -117,3 +117,31 @@ def test_a_shoved_robot_stops_pushing_recovers_the_stand_and_resumes():
     assert moved < 0.03 and trotted > 0.08
     assert np.degrees(trunk_tilt(shoved.traj.base_quat[during][-1])) < 5  # level again when it resumed
 
+
+
+def test_a_planner_too_slow_for_the_wall_clock_is_said_at_the_start(monkeypatch):
+    """On the wall clock a plan's compute time is open-loop time: a planner under 15 Hz gets a warning after its
+    first cycles, naming its rate and what to do; a fast one gets none."""
+    import time
+
+    from amhe_cli.control.closed_loop import MIN_REALTIME_HZ, RATE_CHECK_CYCLES
+    from amhe_cli.control.planner import Planner
+
+    score = Planner._score
+
+    def slow(self, *a, **kw):  # rollouts that take 90 ms, inside the planner's own timing
+        time.sleep(0.09)
+        return score(self, *a, **kw)
+
+    task = get_task("t1", duration=3.2)
+    settings = RunSettings(mode="true", realtime=True, planner=PlannerSettings(samples=4, horizon=10, refine_loops=1),
+                           threads=1,
+                           reflex=ReflexSettings(enabled=False))
+    fast = run_task(task, None, settings)
+    monkeypatch.setattr(Planner, "_score", slow)
+    slowed = run_task(task, None, settings)
+    assert len(slowed.plan_times) > RATE_CHECK_CYCLES
+    (w,) = [w for w in slowed.warnings if "replans at" in w]
+    assert f"under the {MIN_REALTIME_HZ:g} Hz" in w and "more cores" in w
+    assert float(w.split("replans at ")[1].split(" Hz")[0]) < 11.2
+    assert not [w for w in fast.warnings if "replans at" in w]
