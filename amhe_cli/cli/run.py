@@ -158,15 +158,18 @@ def failure_reason(result, task) -> str | None:
 
     In order: the plant's own failure text (``RunResult.failure``: a safety
     trip, a lost link, Ctrl-C); "robot fell at t = 12.3 s" (the first recorded
-    sample with the base below ``task.fall_height``); "time limit (40 s)
+    sample with the trunk below ``task.fall_height`` over the floor or tilted
+    beyond ``task.fall_tilt``); "time limit (40 s)
     reached with the box 0.70 m from the goal (success: within 0.20 m)"; or,
     for a run that ended early without either, where the box was left.
 
     Args:
         result: :class:`~amhe_cli.control.closed_loop.RunResult`.
         task: the :class:`~amhe_cli.control.tasks.Task` it ran (its ``duration``,
-            ``fall_height`` and ``success_radius``).
+            ``fall_height``, ``fall_tilt`` and ``success_radius``).
     """
+    from amhe_cli.control.reflex import fallen
+    from amhe_cli.model.scene import SceneConfig
     if result.success:
         return None
     if result.failure is not None:
@@ -175,7 +178,8 @@ def failure_reason(result, task) -> str | None:
     if result.fell:
         t_fall = result.t_exec
         if traj is not None and len(traj):
-            low = np.flatnonzero(traj.base_pos[:, 2] < task.fall_height)
+            floor = SceneConfig.from_dict(traj.meta["scene"]).robot_floor if "scene" in traj.meta else 0.0
+            low = np.flatnonzero(fallen(traj.base_pos, traj.base_quat, floor, task.fall_height, task.fall_tilt))
             t_fall = float(traj.t[low[0]] if len(low) else traj.t[-1])
         return f"robot fell at t = {t_fall:.1f} s"
     where = f"the box {result.e_g:.2f} m from the goal (success: within {task.success_radius:.2f} m)"

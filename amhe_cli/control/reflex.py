@@ -67,6 +67,18 @@ class ReflexSettings:
         return cls(**{k: (bool(v) if k == "enabled" else float(v)) for k, v in d.items()})
 
 
+def fallen(base_pos: np.ndarray, base_quat: np.ndarray, floor: float, fall_height: float,
+           fall_tilt: float) -> np.ndarray:
+    """(...) bool: the robot has fallen — its trunk under ``fall_height`` [m] over the floor at ``floor`` [m],
+    or tilted beyond ``fall_tilt`` [rad] (past it no recorded run came back: the trunk rolls on over).
+
+    Args:
+        base_pos: (..., 3) trunk positions [m]; base_quat: (..., 4) (w, x, y, z).
+    """
+    base_pos = np.asarray(base_pos, dtype=float)
+    return (base_pos[..., 2] - floor < fall_height) | (trunk_tilt(base_quat) > fall_tilt)
+
+
 def trunk_tilt(quat: np.ndarray) -> np.ndarray:
     """(...) angle [rad] between the trunk's z axis and world z, for (..., 4) (w, x, y, z) quaternions."""
     q = np.asarray(quat, dtype=float)

@@ -149,7 +149,9 @@ class Task:
         robot_pose: where the robot starts, (x [m], y [m], yaw [rad]): the
             one-leg push keeps the trunk there (over its three planted feet).
         weights: :class:`CostWeights`.
-        fall_height: base height under which the robot counts as fallen [m].
+        fall_height: base height over the robot's floor under which the robot counts as fallen [m].
+        fall_tilt: trunk tilt beyond which it counts as fallen [rad] (35°: no recorded run tilted further
+            and came back; the Go1 safety layer damps at 40°).
     """
 
     name: str
@@ -169,6 +171,7 @@ class Task:
     robot_pose: tuple = (0.0, 0.0, 0.0)
     weights: CostWeights = field(default_factory=CostWeights)
     fall_height: float = 0.15
+    fall_tilt: float = 0.6
     #: base height under which a rollout is penalised as falling [m]
     unsafe_height: float = 0.19
 
