@@ -52,8 +52,9 @@ from amhe_cli.estimation.identify import IdentifySettings
               help="Overwrite existing output files (--out, its .truth.csv and .probe.belief.yaml, --plot).")
 @click.option("--plot", type=click.Path(), default=None, help="PNG: box path vs goal, speed tracking, estimates vs truth.")
 @click.option("--json", "as_json", is_flag=True,
-              help="Print only {success, e_g, J, t_exec, rmse[, reason][, failure][, probe_belief]} as JSON; "
-                   "reason says why a run failed, probe_belief where the probe's belief was saved.")
+              help="Print only {success, e_g, J, t_exec, rmse, fell, recoveries[, reason][, failure][, probe_belief]} "
+                   "as JSON; recoveries counts the fall-prevention reflex's stops, reason says why a run failed, "
+                   "probe_belief where the probe's belief was saved.")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Planner rollout threads (default: all CPUs).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
