@@ -156,11 +156,10 @@ class McapLog:
     def _schema(self, msgtype: str):
         schema = self._schemas.get(msgtype)
         if schema is None:
-            from rosbags.typesys import Stores, get_typestore
+            # ROS 2 Humble's types plus the view's foxglove_msgs (amhe_cli.io.view)
+            from amhe_cli.io.view import msgdef
 
-            store = get_typestore(Stores.ROS2_HUMBLE)
-            msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
-            schema = self._writer.register_msgdef(msgtype, msgdef)
+            schema = self._writer.register_msgdef(msgtype, msgdef(msgtype))
             self._schemas[msgtype] = schema
         return schema
 
