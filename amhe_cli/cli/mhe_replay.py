@@ -103,7 +103,10 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     view, server, recorder, frames = None, None, None, None
     if sweep is None and (live or mcap_path is not None):
         from amhe_cli.io.view import View, ViewFrames, ViewRecorder
-        frames = ViewFrames(problem.scene.model, [(r.x_min, r.x_max, r.mu) for r in problem.scene.config.regions],
+        # the floor is labelled with the log's true μ where its truth is known, else the model's
+        mu_true = truth.at("box_friction", problem.traj.t[:1]) if truth is not None else None
+        frames = ViewFrames(problem.scene.model, [(r.x_min, r.x_max, float(mu_true[0]) if mu_true is not None else r.mu)
+                                                  for r in problem.scene.config.regions],
                             t0=problem.traj.meta.get("t0_ns", 0) * 1e-9)
         server = start_live(live, frames)
         recorder = ViewRecorder() if mcap_path is not None else None
@@ -163,6 +166,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
 
     try:
         res = run_one(settings)
+        if view is not None:
+            view.log(float(problem.traj.t[-1]), f"mhe-replay finished: {len(res.updates)} updates over "
+                     f"{res.duration:.1f} s of log, compute {res.compute_time:.1f} s", level="info")
     finally:
         if server is not None:
             server.close()

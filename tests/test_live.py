@@ -1,0 +1,140 @@
+"""The live view (``--live``) and the recordings' view channels, as a Foxglove viewer sees them.
+
+Each test starts amhe as a user would (a subprocess on 127.0.0.1), connects with a WebSocket client
+speaking the Foxglove protocol (``tests/foxglove_ws.py``) and checks what arrives: the channels, their
+schemas, and values that must match the log.
+"""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("foxglove")
+pytest.importorskip("websockets")
+
+from foxglove_ws import watch  # noqa: E402
+
+AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+LOG = Path(__file__).resolve().parents[1] / "examples" / "logs" / "probe_m2.5_mu0.30.mcap"
+SCENE, TF, LOG_T = "foxglove_msgs/msg/SceneUpdate", "foxglove_msgs/msg/FrameTransforms", "foxglove_msgs/msg/Log"
+ARRAY = "std_msgs/msg/Float64MultiArray"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start(args, tmp_path):
+    """amhe ``args`` in a subprocess; waits for its ``live view on ws://…`` line and returns (proc, url)."""
+    proc = subprocess.Popen(AMHE + [str(a) for a in args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path)
+    lines = []
+    for line in proc.stderr:
+        lines.append(line)
+        if "live view on ws://" in line:
+            return proc, line.split("live view on ")[1].split()[0]
+    proc.wait(5)
+    raise AssertionError("no live address printed:\n" + "".join(lines) + proc.stdout.read())
+
+
+def box_poses(path):
+    """(log times [ns], (n, 3) positions) of the box in a log (/mocap/box/pose)."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    ts, ps = [], []
+    with open(path, "rb") as f:
+        for _, _, msg, dec in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/mocap/box/pose"]):
+            ts.append(msg.log_time)
+            p = dec.pose.position
+            ps.append((p.x, p.y, p.z))
+    return np.array(ts), np.array(ps)
+
+
+def belief_of(msg) -> dict:
+    return dict(zip(msg.layout.dim[0].label.split(","), msg.data))
+
+
+def test_mhe_replay_live_streams_scene_transforms_belief_and_log(tmp_path):
+    port = free_port()
+    proc, url = start(["mhe-replay", LOG, "--live", f"127.0.0.1:{port}", "--max-steps", 150, "--samples", 12,
+                       "--out", tmp_path / "est.csv", "-q"], tmp_path)
+    try:
+        assert url == f"ws://127.0.0.1:{port}"
+        done = lambda got: any(t == "/amhe/log" and "finished" in m.message for t, _, m in got)  # noqa: E731
+        channels, got = watch(url, until=done, timeout=90)
+    finally:
+        proc.wait(60)
+    assert proc.returncode == 0, proc.stderr.read()
+    want = {"/amhe/scene": SCENE, "/amhe/tf": TF, "/amhe/belief": ARRAY, "/amhe/log": LOG_T, "/amhe/plan": SCENE}
+    for topic, schema in want.items():
+        assert channels[topic]["schemaName"] == schema
+    by = {}
+    for topic, ns, msg in got:
+        by.setdefault(topic, []).append((ns, msg))
+    # the scene: the robot's bodies from the model's geoms, the box, the floor with the log's true μ
+    scene = by["/amhe/scene"][0][1]
+    ents = {e.id: e for e in scene.entities}
+    assert ents["body/box"].frame_id == "box" and ents["body/box"].frame_locked
+    assert pytest.approx(ents["body/box"].cubes[0].size.x, abs=1e-6) == 0.38
+    trunk = ents["body/trunk"]
+    assert trunk.cubes and trunk.cylinders and trunk.spheres  # box, capsule (cylinder + caps), head
+    assert len(ents["body/FR_calf"].spheres) >= 1  # the foot
+    assert any("μ 0.30" in t.text for e in scene.entities if e.id.startswith("floor/") for t in e.texts)
+    # transforms: world -> box near the logged box pose at the same log time
+    t_log, p_log = box_poses(LOG)
+    errs = []
+    for ns, msg in by["/amhe/tf"]:
+        tf = {x.child_frame_id: x for x in msg.transforms}
+        assert tf["box"].parent_frame_id == "world" and "trunk" in tf
+        i = np.argmin(np.abs(t_log - ns))
+        tr = tf["box"].translation
+        errs.append(np.linalg.norm(np.array([tr.x, tr.y, tr.z]) - p_log[i]))
+    assert len(errs) >= 20 and max(errs) < 0.02, (len(errs), max(errs))
+    # belief: mass and friction with σ, near the truth by the end
+    beliefs = [belief_of(m) for _, m in by["/amhe/belief"]]
+    last = beliefs[-1]
+    assert last["box_mass_truth"] == pytest.approx(2.5) and last["box_friction_truth"] == pytest.approx(0.30)
+    assert abs(last["box_mass"] - 2.5) / 2.5 < 0.10, last
+    assert abs(last["box_friction"] - 0.30) < 0.05, last
+    assert 0 < last["box_mass_std"] < 1 and last["box_mass_lo"] < last["box_mass"] < last["box_mass_hi"]
+    logs = [m for _, m in by["/amhe/log"]]
+    assert logs[-1].level == 2 and logs[-1].name == "amhe" and "updates" in logs[-1].message
+
+
+def test_live_bad_address_and_busy_port_are_one_line_errors(tmp_path):
+    bad = subprocess.run(AMHE + ["mhe-replay", str(LOG), "--live", "localhost:99999"], capture_output=True, text=True,
+                         cwd=tmp_path)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr
+    assert bad.stderr.strip().splitlines()[-1].startswith("amhe: error: --live 'localhost:99999'")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        busy = subprocess.run(AMHE + ["mhe-replay", str(LOG), "--live", str(port), "--out", str(tmp_path / "e.csv")],
+                              capture_output=True, text=True, cwd=tmp_path)
+    assert busy.returncode == 2 and "Traceback" not in busy.stderr, busy.stderr
+    err = [ln for ln in busy.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(err) == 1 and f"127.0.0.1:{port}" in err[0] and "cannot listen" in err[0]
+    assert not (tmp_path / "e.csv").exists()
+
+
+def test_live_layout_prints_the_shipped_layout_built_from_the_sdk(tmp_path):
+    import json
+    from amhe_cli.io.live import build_layout
+    out = subprocess.run(AMHE + ["live-layout"], capture_output=True, text=True, cwd=tmp_path)
+    assert out.returncode == 0
+    layout = json.loads(out.stdout)
+    assert out.stdout == build_layout()  # the shipped file is what the builder makes today
+    text = json.dumps(layout)
+    for topic in ("/amhe/scene", "/amhe/plan", "/amhe/belief.data[0]", "/amhe/belief.data[6]", "/amhe/planner",
+                  "/amhe/safety", "/amhe/log"):
+        assert topic in text
