@@ -138,3 +138,65 @@ def test_live_layout_prints_the_shipped_layout_built_from_the_sdk(tmp_path):
     for topic in ("/amhe/scene", "/amhe/plan", "/amhe/belief.data[0]", "/amhe/belief.data[6]", "/amhe/planner",
                   "/amhe/safety", "/amhe/log"):
         assert topic in text
+
+
+def test_run_on_the_emulator_streams_plan_rate_safety_and_trips_and_records_the_same_channels(tmp_path):
+    """`amhe emulate go1 --live` and `amhe run --target go1 --live` at once: the emulator shows the true
+    robot and box, the run its plan, replanning rate, belief, safety state and the motion-capture
+    watchdog as a Log line; the run's recording carries the same channels, and identify reads it."""
+    import threading
+    from mcap.reader import make_reader
+    p_emu, p_run, pose = free_port(), free_port(), free_port()
+    emu = subprocess.Popen(AMHE + ["emulate", "go1", "--task", "t1", "--port", "0", "--pose-to", f"127.0.0.1:{pose}",
+                                   "--duration", "40", "--fault", "mocap-freeze@5", "--live", f"127.0.0.1:{p_emu}"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    first = emu.stdout.readline()
+    assert "listening on udp://127.0.0.1:" in first, first + emu.stderr.read()
+    port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
+    emu_seen = {}
+    t_emu = threading.Thread(target=lambda: emu_seen.update(zip(("channels", "got"), watch(
+        f"ws://127.0.0.1:{p_emu}", until=lambda got: sum(t == "/amhe/tf" for t, _, _ in got) >= 20, timeout=60))))
+    t_emu.start()
+    out = tmp_path / "go1.mcap"
+    run, url = start(["run", "--task", "t1", "--target", "go1", "--robot", f"127.0.0.1:{port}", "--local-port", "0",
+                      "--mocap", f"udp:127.0.0.1:{pose}", "--mode", "baseline", "--threads", "1", "--arm",
+                      "--duration", "8", "--out", out, "--live", f"127.0.0.1:{p_run}", "-q"], tmp_path)
+    try:
+        channels, got = watch(url, timeout=90)  # until the run ends and its server goes
+    finally:
+        run.wait(120)
+        t_emu.join(60)
+        emu.send_signal(2)
+        emu.wait(10)
+    by = {}
+    for topic, ns, msg in got:
+        by.setdefault(topic, []).append(msg)
+    # the plan: a trunk path starting near the trunk, a box path near the box; a replanning rate
+    assert len(by["/amhe/plan"]) >= 5 and len(by["/amhe/planner"]) >= 10
+    lines = by["/amhe/plan"][-1].entities[0].lines
+    assert len(lines) == 2 and len(lines[0].points) > 10
+    assert 0.15 < lines[0].points[0].z < 0.4  # the trunk's height
+    rates = [m.data[0] for m in by["/amhe/planner"] if np.isfinite(m.data[0])]
+    assert rates and 1 < np.median(rates) < 200
+    # safety: servoing first, then the motion-capture watchdog holds the stand, said in the log with its reason
+    states = [dict(zip(m.layout.dim[0].label.split(","), m.data)) for m in by["/amhe/safety"]]
+    assert states[0]["ok"] == 1 and any(s["stand"] == 1 for s in states), states[-1]
+    assert any(m.level == 3 and "motion capture stale" in m.message for m in by["/amhe/log"])
+    belief = dict(zip(by["/amhe/belief"][0].layout.dim[0].label.split(","), by["/amhe/belief"][0].data))
+    assert belief["box_mass_std"] > 0 and np.isnan(belief["box_mass_truth"])  # a robot: no truth
+    # the emulator's own view: the true robot and box
+    assert emu_seen["channels"]["/amhe/tf"]["schemaName"] == TF
+    tf = [m for t, _, m in emu_seen["got"] if t == "/amhe/tf"][-1]
+    frames = {x.child_frame_id: x for x in tf.transforms}
+    assert abs(frames["box"].translation.x - 0.52) < 0.3 and 0.15 < frames["trunk"].translation.z < 0.4
+    # the recording: the same view channels as live, and identify still reads it
+    with open(out, "rb") as f:
+        summary = make_reader(f).get_summary()
+    recorded = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    for topic in ("/amhe/scene", "/amhe/tf", "/amhe/plan", "/amhe/planner", "/amhe/belief", "/amhe/safety",
+                  "/amhe/log"):
+        assert recorded[topic] == channels[topic]["schemaName"], topic
+    assert recorded["/odom"] == "nav_msgs/msg/Odometry"  # the project's channels stay
+    ident = subprocess.run(AMHE + ["identify", str(out), "--generations", "2", "--clips", "4", "--candidates", "1",
+                                   "--out", str(tmp_path / "b.yaml"), "--json"], capture_output=True, text=True)
+    assert "Traceback" not in ident.stderr and "cannot read" not in ident.stderr, ident.stderr

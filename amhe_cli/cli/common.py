@@ -509,3 +509,24 @@ def start_live(address: str | None, frames, quiet: bool = False):
         click.echo(f"amhe: live view on {server.address} (Foxglove: Open connection -> Foxglove WebSocket; "
                    "layout: amhe live-layout > amhe.json)", err=True)
     return server
+
+
+def task_view_frames(task, kp: float, kd: float, floor: bool = True):
+    """The :class:`~amhe_cli.io.view.ViewFrames` of a task's plant: its bodies (the task's scene at 2 ms
+    with PD gains ``kp``, ``kd``, as ``make_plant`` and the Go1 plant build it), the goal, and with
+    ``floor`` the floor with the task's true box–floor μ (a region per friction event tied to the box's
+    x, as T4's); a real floor's μ is unknown, so a Go1 run passes ``floor=False``."""
+    from amhe_cli.control.closed_loop import task_scene_config
+    from amhe_cli.io.view import ViewFrames
+    from amhe_cli.model.scene import Scene
+    scene = Scene(task_scene_config(task, 0.002, kp, kd))
+    if not floor:
+        return ViewFrames(scene.model, (), goal=task.goal)
+    regions, mu = [], float(task.truth.get("box_friction", scene.config.regions[0].mu))
+    x0 = None
+    for ev in sorted((e for e in task.events if e.param == "box_friction" and e.box_x is not None),
+                     key=lambda e: e.box_x):
+        regions.append((x0, ev.box_x, mu))
+        x0, mu = ev.box_x, float(ev.value)
+    regions.append((x0, None, mu))
+    return ViewFrames(scene.model, regions, goal=task.goal)

@@ -30,8 +30,11 @@ DEFAULT_HOST = "127.0.0.1"
 STATE_QUEUE = 64
 #: Largest number of other events (plans, beliefs, logs) waiting; the oldest are dropped first.
 EVENT_QUEUE = 256
-#: The static scene is re-sent this often [s], so a viewer that joins later sees the robot.
+#: The static scene (and the last of each :data:`LATCHED` kind) is re-sent this often [s] and when a
+#: viewer subscribes, so a viewer that joins late sees the robot and the current belief.
 SCENE_PERIOD = 2.0
+#: Event kinds whose last message a late viewer gets again (a belief may not change for a whole run).
+LATCHED = ("belief", "safety")
 
 
 def parse_live_address(text: str) -> tuple[str, int]:
@@ -99,6 +102,7 @@ class LiveServer:
         self._channels: dict = {}
         self._encoders = {}
         self._last_t = 0.0
+        self._latched: dict[str, Event] = {}
 
     # -- lifetime -------------------------------------------------------------------------------------------
     def start(self) -> "LiveServer":
@@ -164,6 +168,8 @@ class LiveServer:
     # -- the sending thread ---------------------------------------------------------------------------------
     def _send(self, ev: Event) -> None:
         self._last_t = max(self._last_t, ev.t)
+        if ev.kind in LATCHED:
+            self._latched[ev.kind] = ev
         wanted = [t for t in _TOPICS_OF.get(ev.kind, ()) if self._channels[t].has_sinks()]
         if not wanted:
             return
@@ -181,9 +187,11 @@ class LiveServer:
                     draining_until = now + 1.0
                 if now >= draining_until or not (self._events or self._states):
                     return
-            if now >= self._scene_due:
+            if now >= self._scene_due:  # periodically, and at once for a new subscriber
                 self._scene_due = now + SCENE_PERIOD
                 self._safe(Event("scene", self._last_t, ()))
+                for ev in list(self._latched.values()):
+                    self._safe(ev)
             while self._events:
                 self._safe(self._events.popleft())
             wait = 0.05

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -329,6 +329,7 @@ def write_mcap(
     metadata: dict[str, dict[str, Any]] | None = None,
     extra: Iterable[tuple[str, Any, Any, Sequence[str]]] | None = None,
     overwrite: bool = False,
+    more: Callable[["McapLog"], Any] | None = None,
 ) -> Path:
     """Write a trajectory (and optional extras) to an MCAP file in the project schema.
 
@@ -340,6 +341,8 @@ def write_mcap(
         extra: labelled arrays to add, each ``(topic, t, values, labels)`` as
             for :meth:`McapLog.write_array`.
         overwrite: replace an existing file.
+        more: called with the open :class:`McapLog` last, to add other channels (the live view's:
+            :meth:`~amhe_cli.io.view.ViewRecorder.write`).
 
     Returns:
         ``path`` as a :class:`~pathlib.Path`.
@@ -353,4 +356,6 @@ def write_mcap(
             log.write_metadata(name, record)
         for topic, t, values, labels in extra or ():
             log.write_array(topic, t, values, labels)
+        if more is not None:
+            more(log)
     return Path(path)

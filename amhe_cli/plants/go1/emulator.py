@@ -210,6 +210,8 @@ class Go1Emulator:
         pose_noise: (position [m], rotation [rad]) noise std of the pose stream.
         seed: seed of the pose noise.
         overwrite: allow ``record`` to replace an existing file.
+        view: an :class:`~amhe_cli.io.view.View` told the true state every tick (it keeps what its rate
+            allows, never blocks) and each fault and task event as it fires; None: no view.
 
     Raises:
         AmheError: a plant whose step is not 2 ms, a bad fault, an existing
@@ -218,11 +220,13 @@ class Go1Emulator:
 
     def __init__(self, plant, events, host: str = "127.0.0.1", port: int = 0, pose_to=None, faults=(),
                  record=None, base_body: str = "Go1_body", box_body: str = "Box_body",
-                 pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False):
+                 pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False,
+                 view=None):
         dt = plant.model.opt.timestep
         if abs(dt - TICK) > 1e-9:
             raise AmheError(f"emulator plant steps at {dt * 1e3:g} ms: expected {TICK * 1e3:g} ms")
         self.plant = plant
+        self.view = view
         self.events = events if events is not None else []
         self.faults = tuple(f if isinstance(f, Fault) else parse_fault(f) for f in faults)
         self.base_body, self.box_body = str(base_body), str(box_body)
@@ -431,8 +435,12 @@ class Go1Emulator:
         """One 2 ms step: faults, events, motor torques, physics, state out, poses out."""
         m, d = self.model, self.data
         self._update_faults()
+        pending = len(self.events)
         if self.plant.fire_due(self.events):
             self.model = m = self._torque_model()
+            if self.view is not None:
+                self.view.log(self.time, f"emulator: {pending - len(self.events)} task event(s) fired "
+                              f"(truth now {self.plant.truth_values})", "info")
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
         self._tau = motor_torques(self._cmd, q, dq, self.limit)
         d.qfrc_applied[:] = 0.0
@@ -458,6 +466,8 @@ class Go1Emulator:
         else:
             self._last_sent = None  # a silence the emulator meant (no client yet, link-loss) is no gap
         self._send_poses()
+        if self.view is not None:
+            self.view.state(self.time, d.qpos)
 
     def _update_faults(self) -> None:
         if self._t_first is None:
@@ -465,6 +475,9 @@ class Go1Emulator:
         for f in self.faults:
             if f.kind not in self._active and self.time >= self._t_first + f.t:
                 self._active.add(f.kind)
+                if self.view is not None:
+                    self.view.log(self.time, f"emulator: fault {f.kind} injected at {f.t:g} s after the first "
+                                  "command", "warning")
 
     def _state(self) -> LowState:
         """The LowState of the current plant state (see the module docstring)."""
