@@ -89,3 +89,55 @@ def test_no_module_imports_one_that_imports_it_back():
 
 def test_the_cycle_check_finds_a_cycle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def github_anchor(heading: str) -> str:
+    """The anchor GitHub gives a Markdown heading: lower case, punctuation dropped, spaces to hyphens."""
+    text = heading.strip().lower()
+    return "".join(ch for ch in text if ch.isalnum() or ch in " -_").replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    out, seen, fence = set(), {}, False
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if line.startswith("```"):
+            fence = not fence
+        if fence or not line.startswith("#"):
+            continue
+        a = github_anchor(line.lstrip("#"))
+        n = seen.get(a, 0)
+        seen[a] = n + 1
+        out.add(a if n == 0 else f"{a}-{n}")
+    return out
+
+
+DOCS = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md")), ROOT / "examples" / "logs" / "README.md"]
+
+
+@pytest.mark.parametrize("page", DOCS, ids=lambda p: str(p.relative_to(ROOT)))
+def test_every_relative_link_resolves_inside_the_repository(page):
+    text = re.sub(r"```.*?```", "", page.read_text(encoding="utf-8"), flags=re.S)
+    links = re.findall(r"!?\[[^\]]*\]\(([^)\s]+)\)", text)
+    assert page.name != "README.md" or page.parent != ROOT or len(links) > 10
+    bad = []
+    for target in links:
+        if re.match(r"^[a-z][a-z0-9+.-]*:", target):  # https:, mailto:: outside, not checked
+            continue
+        file, _, anchor = target.partition("#")
+        dest = (page.parent / file).resolve() if file else page
+        if ROOT.resolve() not in (dest, *dest.parents) or not dest.exists():
+            bad.append(f"{target}: no such file in the repository")
+        elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+            bad.append(f"{target}: no heading #{anchor} in {dest.relative_to(ROOT.resolve())}")
+    assert not bad, "\n".join(bad)
+
+
+def test_readme_is_short_and_keeps_the_quick_start_that_ci_mirrors():
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(text.splitlines()) <= 150
+    assert ("python3 -m venv .venv && . .venv/bin/activate && pip install . && amhe identify --plot example.png"
+            in text)
+    test_cmd = "python3 -m venv .venv && . .venv/bin/activate && pip install '.[test]' && pytest -q"
+    assert test_cmd in text
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
+    assert "python3 -m venv" in ci and "'.[test]'" in ci and "pytest -q" in ci
