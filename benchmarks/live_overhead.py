@@ -11,8 +11,9 @@ relay ramps to the stand, then follows plans) and runs T1 in baseline mode throu
   would be, decoding nothing.
 
 Trials alternate off/live ``--trials`` times each (the emulator and a fresh plant per trial).
-Per trial: the relay's command period p99 [ms] (``Relay.periods``, the whole run) and the planner's
-rate [Hz] (cycles per wall-clock second); per condition their medians; last line
+Per trial: the relay's command period p99 [ms] (``Relay.periods``, the whole run), the planner's
+rate [Hz] (cycles per wall-clock second) and, live, the CPU time of the server's sending thread per
+second of run; per condition the medians; last line
 ``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used.
 
     python benchmarks/live_overhead.py [--trials 3] [--duration 10] [--threads N]
@@ -126,6 +127,8 @@ def trial(live: bool, args) -> dict:
             "median_ms": 1e3 * float(np.median(periods)), "planner_hz": float(res.control_hz),
             "compute_ms": 1e3 * float(np.median(res.plan_times)), "cycles": len(res.plan_times),
             "sent": server.sent if server else 0, "dropped": server.dropped if server else 0, "viewer": seen,
+            "live_cpu_ms_per_s": 1e3 * server.cpu_s / max(res.traj.duration if len(res.traj) else 1.0, 1e-9)
+            if server else 0.0,
             "failure": res.failure, "busy_s": float(wall)}
 
 
@@ -145,7 +148,8 @@ def main() -> None:
             rows.append(r)
             print(f"trial {k} {'live' if live else 'off '}: relay period median {r['median_ms']:.2f} ms, "
                   f"p99 {r['p99_ms']:.2f} ms; planner {r['planner_hz']:.1f} Hz ({r['cycles']} cycles, compute "
-                  f"{r['compute_ms']:.0f} ms median)" + (f"; sent {r['sent']}, dropped {r['dropped']}; {r['viewer']}"
+                  f"{r['compute_ms']:.0f} ms median)" + (f"; sent {r['sent']}, dropped {r['dropped']}, live thread CPU "
+                                                        f"{r['live_cpu_ms_per_s']:.1f} ms/s; {r['viewer']}"
                                                        if live else "")
                   + (f"; run stopped: {r['failure']}" if r["failure"] else ""), flush=True)
     med = {live: {key: float(np.median([r[key] for r in rows if r["live"] == live]))

@@ -200,3 +200,22 @@ def test_run_on_the_emulator_streams_plan_rate_safety_and_trips_and_records_the_
     ident = subprocess.run(AMHE + ["identify", str(out), "--generations", "2", "--clips", "4", "--candidates", "1",
                                    "--out", str(tmp_path / "b.yaml"), "--json"], capture_output=True, text=True)
     assert "Traceback" not in ident.stderr and "cannot read" not in ident.stderr, ident.stderr
+
+
+def test_the_ros2_form_of_each_foxglove_schema_has_the_sdk_schemas_fields():
+    """The view's foxglove_msgs definitions name the same fields, in the same order, as the SDK's own
+    (protobuf) Foxglove schemas, so Foxglove reads them as the standard SceneUpdate, Log, …"""
+    descriptor_pb2 = pytest.importorskip("google.protobuf.descriptor_pb2")
+    import foxglove.messages as fm
+    from amhe_cli.io.view import FOXGLOVE_MSGS, encoder
+    checked = 0
+    for name, text in FOXGLOVE_MSGS.items():
+        short = name.rsplit("/", 1)[1]
+        fds = descriptor_pb2.FileDescriptorSet()
+        fds.ParseFromString(getattr(fm, short).get_schema().data)
+        proto = {m.name: [f.name for f in m.field] for f in fds.file for m in f.message_type}
+        ours = [ln.split()[1] for ln in text.splitlines() if ln and "=" not in ln]
+        assert ours == proto[short], (name, ours, proto[short])
+        encoder(name)  # and each one compiles to a CDR encoder
+        checked += 1
+    assert checked == len(FOXGLOVE_MSGS) >= 15

@@ -8,8 +8,8 @@ from csv import writer as csv_writer
 import click
 import numpy as np
 
-from amhe_cli.cli.common import (check_outputs, default_output, live_option, log_options, nominal_prior_text,
-                                 parse_smooth, progress_bar, start_live, check_live)
+from amhe_cli.cli.common import (check_live, check_outputs, default_output, live_option, log_options,
+                                 nominal_prior_text, parse_smooth, progress_bar, start_live)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.cost import StateWeights
 from amhe_cli.estimation.mhe import REPLAY_SETTINGS
@@ -235,6 +235,8 @@ def _view_hook(view, problem, truth):
     update, paced over this update's compute time (so they play at the replay's speed), then the
     belief (fused estimate ± σ, the window's own, the truth where known) and a line per skipped window."""
     import time
+
+    from amhe_cli.io.view import belief_message
     traj, space = problem.traj, problem.space
     qpos, _ = problem.scene.qpos_qvel(traj)
     labels = list(space.labels)
@@ -243,7 +245,6 @@ def _view_hook(view, problem, truth):
     view.scene(float(traj.t[0]))
 
     def hook(u):
-        from amhe_cli.io.view import belief_message
         i1 = int(np.searchsorted(traj.t, u.t, side="right"))
         idx = np.arange(last["i"], i1)
         if len(idx):

@@ -85,6 +85,8 @@ class LiveServer:
 
     Attributes:
         sent: messages sent; dropped: events dropped because a queue was full.
+        cpu_s: CPU time the sending thread used so far [s] (converting and handing messages to the
+            SDK; the SDK's own network threads are not counted).
     """
 
     def __init__(self, frames: ViewFrames, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, name: str = "amhe"):
@@ -92,6 +94,7 @@ class LiveServer:
         self.host, self.port, self.name = host, port, name
         self.sent = 0
         self.dropped = 0
+        self.cpu_s = 0.0
         self._states: collections.deque = collections.deque(maxlen=STATE_QUEUE)
         self._events: collections.deque = collections.deque(maxlen=EVENT_QUEUE)
         self._wake = threading.Event()
@@ -180,8 +183,10 @@ class LiveServer:
 
     def _loop(self) -> None:
         draining_until = None
+        cpu0 = time.thread_time()
         while True:
             now = time.monotonic()
+            self.cpu_s = time.thread_time() - cpu0
             if self._stop.is_set():
                 if draining_until is None:
                     draining_until = now + 1.0

@@ -19,7 +19,7 @@ topic                  type                               content
 ``/amhe/plan``         foxglove_msgs/msg/SceneUpdate      planner's mean plan: predicted trunk and box paths
 ``/amhe/planner``      std_msgs/msg/Float64MultiArray     ``rate_hz, compute_ms, lead_ms`` (labelled)
 ``/amhe/belief``       std_msgs/msg/Float64MultiArray     per parameter: value, σ, value ∓ σ, window, truth
-``/amhe/safety``       std_msgs/msg/Float64MultiArray     Go1 safety state (``ok, hold, damp, clamped``)
+``/amhe/safety``       std_msgs/msg/Float64MultiArray     Go1 safety state (``ok, hold, stand, damp, clamped``)
 ``/amhe/log``          foxglove_msgs/msg/Log              every warning, trip and watchdog, with its reason
 =====================  =================================  ===========================================
 
