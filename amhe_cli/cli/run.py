@@ -115,10 +115,10 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
             frames.goal = tuple(task.goal)  # placed where the robot and the box stand
         elif probing:
             if talk:
-                click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the lunge "
-                           f"probe, then identify (up to {IdentifySettings.max_gen} CMA-ES generations, under a minute on 2 "
-                           "cores); then the "
-                           f"{task.name} run (up to {task.duration:g} s of sim time)", err=True)
+                click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the "
+                           f"lunge probe, then identify (up to {IdentifySettings.max_gen} CMA-ES generations, under a "
+                           f"minute on 2 cores); then the {task.name} run (up to {task.duration:g} s of sim time)",
+                           err=True)
             bar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
             try:
                 start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))

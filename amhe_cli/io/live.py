@@ -75,6 +75,10 @@ def layout_text() -> str:
 class LiveServer:
     """A Foxglove WebSocket server streaming a view; a context manager.
 
+    Protocol: the Foxglove WebSocket protocol of the official SDK (``foxglove.start_server`` on a
+    :class:`foxglove.Context` of its own): one channel per :data:`~amhe_cli.io.view.VIEW_TOPICS`
+    topic, ``ros2msg`` schema, ``cdr`` messages, log time = the event's log time [ns].
+
     Args:
         frames: converts events into messages (owned by the server's thread from :meth:`start` on).
         host, port: where to listen (port 0: any free port; :attr:`port` says which).
@@ -127,7 +131,8 @@ class LiveServer:
             self._server = fg.start_server(name=self.name, host=self.host, port=self.port, context=self._ctx,
                                            server_listener=_Listener())
         except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError variants for a busy port
-            raise AmheError(f"--live {self.host}:{self.port}: cannot listen there ({' '.join(str(exc).split())})") from None
+            why = " ".join(str(exc).split())
+            raise AmheError(f"--live {self.host}:{self.port}: cannot listen there ({why})") from None
         self.port = self._server.port
         for topic, msgtype in VIEW_TOPICS.items():
             schema = fg.Schema(name=msgtype, encoding="ros2msg", data=msgdef(msgtype).encode())

@@ -432,7 +432,8 @@ class View:
             self._last_state = t
             self._emit(Event("state", t, (np.array(qpos, dtype=float),), due))
 
-    def plan(self, t: float, trunk: np.ndarray | None, box: np.ndarray | None, compute: float, lead: float = 0.0) -> None:
+    def plan(self, t: float, trunk: np.ndarray | None, box: np.ndarray | None, compute: float,
+             lead: float = 0.0) -> None:
         """A planner cycle at ``t`` [s]: its mean plan's predicted (H, 3) trunk and box paths [m] (None:
         not known), its compute time and lead [s]; the replanning rate is measured here over every
         call, the paths are handed on at most ``plan_rate`` times per second of event time."""
