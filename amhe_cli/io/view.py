@@ -35,6 +35,8 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
+from amhe_cli.io.quat import mj_to_ros, quat_rotate
+
 __all__ = ["View", "ViewFrames", "ViewRecorder", "VIEW_TOPICS", "msgdef", "encoder", "Event", "belief_message"]
 
 # -- the ROS 2 form of Foxglove's schemas ------------------------------------------------------------
@@ -158,8 +160,9 @@ def _vec(v) -> dict:
 
 
 def _quat_wxyz(q) -> dict:
-    """A MuJoCo (w, x, y, z) quaternion as a ROS (x, y, z, w) message."""
-    return {"x": float(q[1]), "y": float(q[2]), "z": float(q[3]), "w": float(q[0])}
+    """A MuJoCo (w, x, y, z) quaternion as a ROS (x, y, z, w) message (the one boundary conversion)."""
+    x, y, z, w = mj_to_ros(np.asarray(q, dtype=float))
+    return {"x": float(x), "y": float(y), "z": float(z), "w": float(w)}
 
 
 def _pose(pos, quat_wxyz=(1.0, 0.0, 0.0, 0.0)) -> dict:
@@ -176,19 +179,6 @@ def _entity(ns: int, frame: str, ident: str, frame_locked: bool = True, **prims)
     for key in ("arrows", "cubes", "spheres", "cylinders", "lines", "triangles", "texts", "models"):
         e[key] = prims.get(key, [])
     return e
-
-
-def _quat_mul(a, b) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2])
-
-
-def _rotate(q, v) -> np.ndarray:
-    qv = np.array([0.0, *v])
-    qc = np.array([q[0], -q[1], -q[2], -q[3]])
-    return _quat_mul(_quat_mul(q, qv), qc)[1:]
 
 
 def _mu_color(mu: float) -> tuple:
@@ -260,7 +250,7 @@ class ViewFrames:
             out = {"cylinders": [{"pose": _pose(pos, quat), "size": _vec((2 * r, 2 * r, 2 * half)),
                                   "bottom_scale": 1.0, "top_scale": 1.0, "color": _color(rgba)}]}
             if typ == gt.mjGEOM_CAPSULE:
-                ends = [pos + _rotate(quat, (0.0, 0.0, s * half)) for s in (-1.0, 1.0)]
+                ends = [pos + quat_rotate(quat, np.array([0.0, 0.0, s * half])) for s in (-1.0, 1.0)]
                 out["spheres"] = [{"pose": _pose(e), "size": _vec((2 * r,) * 3), "color": _color(rgba)} for e in ends]
             return out
         return {}
