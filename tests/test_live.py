@@ -88,7 +88,7 @@ def test_mhe_replay_live_streams_scene_transforms_belief_and_log(tmp_path):
     trunk = ents["body/trunk"]
     assert trunk.cubes and trunk.cylinders and trunk.spheres  # box, capsule (cylinder + caps), head
     assert len(ents["body/FR_calf"].spheres) >= 1  # the foot
-    assert any("μ 0.30" in t.text for e in scene.entities if e.id.startswith("floor/") for t in e.texts)
+    assert any("μ 0.30 (truth)" in t.text for e in scene.entities if e.id.startswith("floor/") for t in e.texts)
     # transforms: world -> box near the logged box pose at the same log time
     t_log, p_log = box_poses(LOG)
     errs = []

@@ -526,7 +526,7 @@ def task_view_frames(task, kp: float, kd: float, floor: bool = True):
     x0 = None
     for ev in sorted((e for e in task.events if e.param == "box_friction" and e.box_x is not None),
                      key=lambda e: e.box_x):
-        regions.append((x0, ev.box_x, mu))
+        regions.append((x0, ev.box_x, mu, "truth"))
         x0, mu = ev.box_x, float(ev.value)
-    regions.append((x0, None, mu))
+    regions.append((x0, None, mu, "truth"))
     return ViewFrames(scene.model, regions, goal=task.goal)

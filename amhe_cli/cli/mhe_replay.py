@@ -103,11 +103,13 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     view, server, recorder, frames = None, None, None, None
     if sweep is None and (live or mcap_path is not None):
         from amhe_cli.io.view import View, ViewFrames, ViewRecorder
-        # the floor is labelled with the log's true μ where its truth is known, else the model's
-        mu_true = truth.at("box_friction", problem.traj.t[:1]) if truth is not None else None
-        frames = ViewFrames(problem.scene.model, [(r.x_min, r.x_max, float(mu_true[0]) if mu_true is not None else r.mu)
-                                                  for r in problem.scene.config.regions],
-                            t0=problem.traj.meta.get("t0_ns", 0) * 1e-9)
+        # the floor is labelled with the log's true μ where its truth gives one μ for the whole log on a
+        # uniform floor, else with the model's
+        regions = [(r.x_min, r.x_max, r.mu, "model") for r in problem.scene.config.regions]
+        mu_true = truth.values.get("box_friction") if truth is not None else None
+        if mu_true is not None and len(regions) == 1 and np.ptp(mu_true) == 0:
+            regions = [(None, None, float(mu_true[0]), "truth")]
+        frames = ViewFrames(problem.scene.model, regions, t0=problem.traj.meta.get("t0_ns", 0) * 1e-9)
         server = start_live(live, frames)
         recorder = ViewRecorder() if mcap_path is not None else None
         view = View([server, recorder])

@@ -211,8 +211,8 @@ class ViewFrames:
     Args:
         model: the ``mujoco.MjModel`` whose bodies and geoms are drawn (the plant's or the log's scene);
             each body is a frame named after it; the world body's geoms (the floor) are not drawn.
-        regions: (x_min, x_max, μ) per floor region [m] (None: unbounded), drawn as floor patches
-            labelled with their box–floor μ.
+        regions: (x_min, x_max, μ[, source]) per floor region [m] (None: unbounded), drawn as floor
+            patches labelled with their box–floor μ and where it comes from (``truth``, ``model``).
         goal: (x, y) [m] of the box's goal, or None.
         t0: log time [s] added to every event's time (a log's start, 0 for a run).
 
@@ -261,7 +261,7 @@ class ViewFrames:
         m, ns = self.model, self.ns(t)
         by_body: dict[int, dict] = {}
         entities = []
-        for k, (x0, x1, mu) in enumerate(self.regions):
+        for k, (x0, x1, mu, *source) in enumerate(self.regions):
             lo = (-2.0 if x1 is None else min(-2.0, x1 - 4.0)) if x0 is None else x0
             hi = (max(lo, 0.0) + 6.0) if x1 is None else x1
             centre = ((lo + hi) / 2, 0.0, -0.001)
@@ -269,7 +269,7 @@ class ViewFrames:
                 {"pose": _pose(centre), "size": _vec((hi - lo, 4.0, 0.002)), "color": _color(_mu_color(mu))}],
                 texts=[{"pose": _pose((centre[0], -1.5, 0.01)), "billboard": True, "font_size": 14.0,
                         "scale_invariant": True, "color": _color((0.1, 0.1, 0.1, 1.0)),
-                        "text": f"box–floor μ {mu:.2f}"}]))
+                        "text": f"box–floor μ {mu:.2f}" + (f" ({source[0]})" if source else "")}]))
         for g in range(m.ngeom):
             if m.geom_bodyid[g] == 0:  # the floor and its contact regions: drawn above, with their μ
                 continue
