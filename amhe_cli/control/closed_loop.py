@@ -498,6 +498,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         warn(f"run stopped: {failure}")
     traj = plant.recording()
     view.log(clock[0], f"{task.name} {s.mode}: run ended at t = {clock[0]:.2f} s", "info")
+    if view and getattr(plant, "safety_status", None) is not None:
+        view.safety(clock[0], plant.safety_status())  # the state it ended in: damped, as every Go1 run ends
     box_final = traj.box_pos[-1, :2] if len(traj) else np.asarray(task.box_start, dtype=float)
     e_g = task.goal_error(box_final)
     speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)
