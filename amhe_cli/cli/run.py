@@ -98,6 +98,9 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     talk = not (quiet or as_json)
     if task.name == "t5":
         click.echo(f"amhe: warning: {T5_WARNING}", err=True)
+    if target == "go1" and mode == "true":
+        raise AmheError("--mode true needs the box's true parameters, which a real robot does not have: "
+                        "use --mode adaptive or baseline")
     # the view: recorded into the MCAP always, streamed to Foxglove with --live; the server starts
     # before the plant or the probe (a busy port costs nothing) and stops whatever happens
     from amhe_cli.io.view import View, ViewFrames, ViewRecorder
@@ -107,9 +110,6 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     try:
         plant = None
         if target == "go1":
-            if mode == "true":
-                raise AmheError("--mode true needs the box's true parameters, which a real robot does not have: "
-                                "use --mode adaptive or baseline")
             plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
                                             goal_xy, arm, quiet or as_json)
             frames.goal = tuple(task.goal)  # placed where the robot and the box stand
