@@ -1,4 +1,4 @@
-"""The ``amhe`` command line: identify, probe, mhe-replay, run, evaluate, emulate.
+"""The ``amhe`` command line: identify, probe, mhe-replay, run, evaluate, emulate, live-layout.
 
 One module per subcommand in this package; the options and helpers they share
 live in :mod:`~amhe_cli.cli.common`. Every user-facing problem raises
@@ -18,6 +18,7 @@ from amhe_cli import __version__
 from amhe_cli.cli.emulate import emulate_cmd
 from amhe_cli.cli.evaluate import evaluate_cmd
 from amhe_cli.cli.identify import identify_cmd
+from amhe_cli.cli.live_layout import live_layout_cmd
 from amhe_cli.cli.mhe_replay import mhe_replay_cmd
 from amhe_cli.cli.probe import probe_cmd
 from amhe_cli.cli.run import run_cmd
@@ -36,7 +37,7 @@ def cli():
 
 
 
-for _cmd in (identify_cmd, probe_cmd, mhe_replay_cmd, run_cmd, evaluate_cmd, emulate_cmd):
+for _cmd in (identify_cmd, probe_cmd, mhe_replay_cmd, run_cmd, evaluate_cmd, emulate_cmd, live_layout_cmd):
     cli.add_command(_cmd)
 
 

@@ -467,3 +467,66 @@ def parse_range(text: str, flag: str) -> tuple[float, float]:
 def parse_xy(text: str, flag: str) -> tuple[float, float]:
     """``"x,y"`` -> (x, y) finite floats; AmheError naming ``flag`` otherwise."""
     return _two_numbers(text, flag, "X,Y")
+
+
+def live_option(f):
+    """``--live [HOST:]PORT``: stream the view to Foxglove (``amhe[live]``); a bare ``--live`` is port 8765."""
+    return click.option("--live", default=None, is_flag=False, flag_value="8765", metavar="[HOST:]PORT",
+                        help="Stream what the robot, planner and estimator think to Foxglove over WebSocket "
+                             "(Foxglove: Open connection, ws://HOST:PORT; load `amhe live-layout`). "
+                             "Loopback unless a HOST is given; needs pip install 'amhe[live]'.")(f)
+
+
+def check_live(address: str | None) -> None:
+    """Validate ``--live`` before any work: the address parses and the SDK is installed.
+
+    Raises:
+        AmheError: a bad ``[HOST:]PORT`` or no ``foxglove-sdk``.
+    """
+    if address is not None:
+        from amhe_cli.io.live import parse_live_address, require_sdk
+        parse_live_address(address)
+        require_sdk()
+
+
+def start_live(address: str | None, frames, quiet: bool = False):
+    """The live server of ``--live`` (None without it), listening, its address said on stderr.
+
+    Args:
+        address: the ``--live`` value (``[HOST:]PORT``) or None.
+        frames: the :class:`~amhe_cli.io.view.ViewFrames` it converts with.
+        quiet: do not print the address.
+
+    Raises:
+        AmheError: a bad address, the SDK missing, or the port busy (one line, before any work).
+    """
+    if address is None:
+        return None
+    from amhe_cli.io.live import LiveServer, parse_live_address
+    host, port = parse_live_address(address)
+    server = LiveServer(frames, host, port).start()
+    if not quiet:
+        click.echo(f"amhe: live view on {server.address} (Foxglove: Open connection -> Foxglove WebSocket; "
+                   "layout: amhe live-layout > amhe.json)", err=True)
+    return server
+
+
+def task_view_frames(task, kp: float, kd: float, floor: bool = True):
+    """The :class:`~amhe_cli.io.view.ViewFrames` of a task's plant: its bodies (the task's scene at 2 ms
+    with PD gains ``kp``, ``kd``, as ``make_plant`` and the Go1 plant build it), the goal, and with
+    ``floor`` the floor with the task's true box–floor μ (a region per friction event tied to the box's
+    x, as T4's); a real floor's μ is unknown, so a Go1 run passes ``floor=False``."""
+    from amhe_cli.control.closed_loop import task_scene_config
+    from amhe_cli.io.view import ViewFrames
+    from amhe_cli.model.scene import Scene
+    scene = Scene(task_scene_config(task, 0.002, kp, kd))
+    if not floor:
+        return ViewFrames(scene.model, (), goal=task.goal)
+    regions, mu = [], float(task.truth.get("box_friction", scene.config.regions[0].mu))
+    x0 = None
+    for ev in sorted((e for e in task.events if e.param == "box_friction" and e.box_x is not None),
+                     key=lambda e: e.box_x):
+        regions.append((x0, ev.box_x, mu, "truth"))
+        x0, mu = ev.box_x, float(ev.value)
+    regions.append((x0, None, mu, "truth"))
+    return ViewFrames(scene.model, regions, goal=task.goal)

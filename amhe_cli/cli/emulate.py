@@ -11,6 +11,7 @@ import sys
 
 import click
 
+from amhe_cli.cli.common import check_live, live_option, start_live, task_view_frames
 from amhe_cli.errors import AmheError
 
 #: Gains the plant's scene is built with. The emulator zeroes the plant's position
@@ -81,15 +82,17 @@ def emulate_cmd():
               help="Stop after this many seconds of emulator time (default: until SIGINT/SIGTERM).")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the pose noise.")
 @click.option("--quiet", "-q", is_flag=True, help="No summary line on stderr at the end.")
+@live_option
 def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_body, faults, record, force,
-            duration, seed, quiet):
+            duration, seed, quiet, live):
     """A Go1 EDU on the low-level UDP link (legged_sdk 3.8), played by the sim plant.
 
     \b
     Listens for 614-byte LowCmd packets on udp://HOST:PORT and answers the
     sender of the last valid one with an 807-byte LowState every 2 ms; streams
-    the trunk and box poses to --pose-to. The first line on stdout says where
-    it listens and sends; a summary goes to stderr at the end.
+    the trunk and box poses to --pose-to (and, with --live, the true robot and
+    box to Foxglove). The first line on stdout says where it listens and sends;
+    a summary goes to stderr at the end.
     """
     from amhe_cli.control.closed_loop import make_plant
     from amhe_cli.control.tasks import get_task
@@ -100,18 +103,33 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     fault_list = [parse_fault(f) for f in faults]
     noise = parse_pose_noise(pose_noise)
     target = None if pose_to.strip().lower() == "off" else parse_address(pose_to, POSE_STREAM_PORT)
+    check_live(live)
     t = get_task(task)
     plant = make_plant(t, _SCENE_KP, _SCENE_KD)
-    emu = Go1Emulator(plant, list(t.events), host=host, port=port, pose_to=target, faults=fault_list,
-                      record=record, base_body=base_body, box_body=box_body, pose_latency=pose_latency,
-                      pose_noise=noise, seed=seed, overwrite=force, on_event=_say_event)
+    server = view = None
+    if live is not None:  # the emulated robot's true state, as the plant's own view
+        from amhe_cli.io.view import View
+        server = start_live(live, task_view_frames(t, _SCENE_KP, _SCENE_KD))
+        view = View([server])
+    try:
+        emu = Go1Emulator(plant, list(t.events), host=host, port=port, pose_to=target, faults=fault_list,
+                          record=record, base_body=base_body, box_body=box_body, pose_latency=pose_latency,
+                          pose_noise=noise, seed=seed, overwrite=force, view=view, on_event=_say_event)
+    except BaseException:
+        if server is not None:
+            server.close()
+        raise
     bh, bp = emu.address
     poses = (f"poses to udp://{target[0]}:{target[1]} ({base_body}, {box_body})" if target is not None
              else "poses off")
     extra = f", faults {' '.join(f'{f.kind}@{f.t:g}' for f in fault_list)}" if fault_list else ""
     click.echo(f"amhe emulate go1: listening on udp://{bh}:{bp}, {poses}, task {t.name}{extra}")
     sys.stdout.flush()
-    st = emu.run(duration)
+    try:
+        st = emu.run(duration)
+    finally:
+        if server is not None:
+            server.close()
     if not quiet:
         click.echo(f"amhe emulate go1: {st.ticks * 0.002:.2f} s emulated, packets valid {st.valid} bad {st.bad} "
                    f"ignored {st.ignored}, states sent {st.sent}, poses {st.poses}, overruns {st.overruns}, "

@@ -8,8 +8,8 @@ from csv import writer as csv_writer
 import click
 import numpy as np
 
-from amhe_cli.cli.common import (check_outputs, default_output, log_options, nominal_prior_text, parse_smooth,
-                                 progress_bar)
+from amhe_cli.cli.common import (check_live, check_outputs, default_output, live_option, log_options,
+                                 nominal_prior_text, parse_smooth, progress_bar, start_live)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.cost import StateWeights
 from amhe_cli.estimation.mhe import REPLAY_SETTINGS
@@ -57,15 +57,17 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="Rollout threads (default: all CPUs).")
 @click.option("--out", default=None, type=click.Path(), help="Estimates CSV (default: <log stem>.mhe.csv).")
 @click.option("--mcap", "mcap_out", default=None, type=click.Path(),
-              help="Also write the estimates to this MCAP on /amhe/estimate (Float64MultiArray).")
+              help="Also write the estimates to this MCAP on /amhe/estimate (Float64MultiArray), with the "
+                   "live view's channels (docs/log_schema.md#the-view).")
+@live_option
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object and nothing else.")
 @click.option("--plot", type=click.Path(), default=None,
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, realtime, truth_csv, sweep, seeds, seed, threads, out, mcap_out, force, as_json,
-                   plot, quiet):
+                   clip, max_steps, fuse, realtime, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live, force,
+                   as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
     Outputs (--out CSV, --mcap, --plot) are refused if they exist, unless
@@ -83,12 +85,13 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     free = parse_names(params)
     smooth = parse_smooth(smooth)
     if sweep is not None:
-        if out or mcap_out or plot:
-            raise AmheError("--sweep prints a table and writes no file: drop --out, --mcap and --plot")
+        if out or mcap_out or plot or live:
+            raise AmheError("--sweep prints a table and writes no file: drop --out, --mcap, --plot and --live")
         out_path = mcap_path = plot_path = None
     else:
         out_path, mcap_path, plot_path = check_outputs(
             force, ("--out", default_output(out, log, ".mhe.csv")), ("--mcap", mcap_out), ("--plot", check_png_name(plot)))
+    check_live(live)
     problem = load_problem(log, topics=parse_topics(topics, map_file), params=free, prior=prior,
                            box_size=parse_box_size(box_size), smooth=smooth)
     if settings.window > problem.traj.duration:
@@ -97,12 +100,28 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     if truth_csv and truth is None:
         raise AmheError(f"--truth {truth_csv}: expected a CSV with a 't' column and truth columns")
 
+    view, server, recorder, frames = None, None, None, None
+    if sweep is None and (live or mcap_path is not None):
+        from amhe_cli.io.view import View, ViewFrames, ViewRecorder
+        # the floor is labelled with the log's true μ where its truth gives one μ for the whole log on a
+        # uniform floor, else with the model's
+        regions = [(r.x_min, r.x_max, r.mu, "model") for r in problem.scene.config.regions]
+        mu_true = truth.values.get("box_friction") if truth is not None else None
+        if mu_true is not None and len(regions) == 1 and np.ptp(mu_true) == 0:
+            regions = [(None, None, float(mu_true[0]), "truth")]
+        frames = ViewFrames(problem.scene.model, regions, t0=problem.traj.meta.get("t0_ns", 0) * 1e-9)
+        server = start_live(live, frames)
+        recorder = ViewRecorder() if mcap_path is not None else None
+        view = View([server, recorder])
+
     def run_one(st: MHESettings):
         bar = progress_bar(round(problem.traj.duration, 2), "mhe-replay", quiet or as_json,
                         counter="{n:.1f}/{total:.1f} s of log")
         with MovingHorizonEstimator(problem.scene, problem.space, st, StateWeights.for_log(problem.traj),
                                     nthread=threads) as mhe:
-            res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n))
+            hook = None if view is None else _view_hook(view, problem, truth)
+            res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n),
+                         on_update=hook)
         bar.close()
         return res
 
@@ -147,7 +166,14 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
                        f"{r['update_s'][0]:6.3f} ± {r['update_s'][1]:5.3f}")
         return
 
-    res = run_one(settings)
+    try:
+        res = run_one(settings)
+        if view is not None:
+            view.log(float(problem.traj.t[-1]), f"mhe-replay finished: {len(res.updates)} updates over "
+                     f"{res.duration:.1f} s of log, compute {res.compute_time:.1f} s", level="info")
+    finally:
+        if server is not None:
+            server.close()
     head, table = estimates_table(problem.space, res, windows=fuse)
     with open(out_path, "w", newline="") as fh:
         w = csv_writer(fh)
@@ -160,6 +186,7 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
             labels = head[1:]
             mlog.write_array("/amhe/estimate", table[:, 0] + t0, table[:, 1:], labels)
             mlog.write_metadata("amhe_mhe", {k: json.dumps(v) for k, v in settings.to_dict().items()})
+            recorder.write(mlog, frames)
     skipped = np.array([u.skipped for u in res.updates])
     if plot_path is not None:
         plot_estimates(plot_path, head, table, truth, skipped)
@@ -199,3 +226,47 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
                    f"lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
     click.echo(f"estimates written to {out_path}" + (f", {mcap_path}" if mcap_path else "")
                + (f"; plot to {plot_path}" if plot_path else ""))
+
+
+#: Pose frames per second of log time the live view plays back between two updates.
+_PLAYBACK_RATE = 30.0
+
+
+def _view_hook(view, problem, truth):
+    """The replay's ``on_update`` hook feeding ``view``: the log's robot and box poses since the last
+    update, paced over this update's compute time (so they play at the replay's speed), then the
+    belief (fused estimate ± σ, the window's own, the truth where known) and a line per skipped window."""
+    import time
+
+    from amhe_cli.io.view import belief_message
+    traj, space = problem.traj, problem.space
+    qpos, _ = problem.scene.qpos_qvel(traj)
+    labels = list(space.labels)
+    names = [next(n for n, sl in space.slices().items() if sl.start <= i < sl.stop) for i in range(space.dim)]
+    last = {"i": 0}
+    view.scene(float(traj.t[0]))
+
+    def hook(u):
+        i1 = int(np.searchsorted(traj.t, u.t, side="right"))
+        idx = np.arange(last["i"], i1)
+        if len(idx):
+            step = max(1, int(round(1.0 / (_PLAYBACK_RATE * traj.dt))))
+            idx = idx[::step]
+            now, span = time.monotonic(), min(max(u.compute_time, 0.0), 5.0)
+            for k, i in enumerate(idx):
+                view.state(float(traj.t[i]), qpos[i], due=now + span * k / len(idx), force=True)
+        last["i"] = i1
+        val, sd = space.physical(u.mean, u.std)
+        own = space.physical(u.window_mean)[0] if u.window_mean is not None else None
+        tru = None
+        if truth is not None:
+            tru = np.full(space.dim, np.nan)
+            for j, name in enumerate(names):
+                v = truth.at(name, np.array([u.t]))
+                if v is not None:
+                    v = np.ravel(v[0])
+                    tru[j] = v[j - space.slices()[name].start] if len(v) > 1 else v[0]
+        view.belief(u.t, *belief_message(labels, val, sd, own, tru))
+        if u.skipped:
+            view.log(u.t, f"t={u.t:.2f} s: no box motion in the window, estimate kept", level="info")
+    return hook

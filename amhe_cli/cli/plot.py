@@ -28,7 +28,8 @@ def _check_png(path) -> Path:
 
 def check_png_name(path) -> Path | None:
     """A ``--plot`` name checked for its ``.png`` ending only (None passes); its folder and
-    whether it exists are :func:`~amhe_cli.cli.common.check_outputs`' job.
+    whether it exists are :func:`~amhe_cli.cli.common.check_outputs`' job (called by each command:
+    this module does not import ``common``, which imports it for ``--plot``).
 
     Raises:
         AmheError: the name does not end in .png.
@@ -39,18 +40,6 @@ def check_png_name(path) -> Path | None:
     if path.suffix.lower() != ".png":
         raise AmheError(f"--plot {path}: expected a file name ending in .png")
     return path
-
-
-def check_plot_path(path, force: bool = False) -> Path | None:
-    """Validate a ``--plot`` path before any long work starts (None passes): a .png name, in an
-    existing folder, not an existing file unless ``force`` (the rule of
-    :func:`~amhe_cli.cli.common.check_outputs`).
-
-    Raises:
-        AmheError: not .png, no such folder, or the file exists without ``force``.
-    """
-    from amhe_cli.cli.common import check_outputs
-    return check_outputs(force, ("--plot", check_png_name(path)))[0]
 
 
 def _estimate_band(ax, t: np.ndarray, v: np.ndarray, sd: np.ndarray, label: str) -> np.ndarray:

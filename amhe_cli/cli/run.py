@@ -11,7 +11,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, fmt, load_belief, parse_xy, progress_bar
+from amhe_cli.cli.common import (T5_WARNING, TASK_HELP, check_live, check_outputs, fmt, live_option, load_belief,
+                                 parse_xy, progress_bar, start_live, task_view_frames)
 from amhe_cli.control.closed_loop import MODES
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.identify import IdentifySettings
@@ -57,8 +58,9 @@ from amhe_cli.estimation.identify import IdentifySettings
                    "probe_belief where the probe's belief was saved.")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Planner rollout threads (default: all CPUs).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
+@live_option
 def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
-            box_body, goal, arm, out, force, plot, as_json, threads, quiet):
+            box_body, goal, arm, out, force, plot, as_json, threads, quiet, live):
     """Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1.
 
     \b
@@ -89,6 +91,7 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
         ("--out", out_path.with_name(stem + ".truth.csv") if target == "sim" else None),  # save_run's truth CSV
         ("--out", out_path.with_name(stem + ".probe.belief.yaml") if probing else None),
         ("--plot", check_png_name(plot)))
+    check_live(live)
     goal_xy = parse_xy(goal, "--goal") if goal is not None else None
     if target == "sim" and goal is not None:
         raise AmheError("--goal is for --target go1; the sim tasks have their own goals (use --config task: goal)")
@@ -96,36 +99,49 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     talk = not (quiet or as_json)
     if task.name == "t5":
         click.echo(f"amhe: warning: {T5_WARNING}", err=True)
-    plant = None
-    if target == "go1":
-        if mode == "true":
-            raise AmheError("--mode true needs the box's true parameters, which a real robot does not have: "
-                            "use --mode adaptive or baseline")
-        plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
-                                        goal_xy, arm, quiet or as_json)
-    elif probing:
-        if talk:
-            click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the lunge "
-                       f"probe, then identify (up to {IdentifySettings.max_gen} CMA-ES generations, under a minute on 2 "
-                       "cores); then the "
-                       f"{task.name} run (up to {task.duration:g} s of sim time)", err=True)
-        bar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
+    if target == "go1" and mode == "true":
+        raise AmheError("--mode true needs the box's true parameters, which a real robot does not have: "
+                        "use --mode adaptive or baseline")
+    # the view: recorded into the MCAP always, streamed to Foxglove with --live; the server starts
+    # before the plant or the probe (a busy port costs nothing) and stops whatever happens
+    from amhe_cli.io.view import View, ViewFrames, ViewRecorder
+    frames = task_view_frames(task, settings.kp, settings.kd, floor=target == "sim")
+    server = start_live(live, frames)
+    recorder = ViewRecorder()
+    try:
+        plant = None
+        if target == "go1":
+            plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
+                                            goal_xy, arm, quiet or as_json)
+            frames.goal = tuple(task.goal)  # placed where the robot and the box stand
+        elif probing:
+            if talk:
+                click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the "
+                           f"lunge probe, then identify (up to {IdentifySettings.max_gen} CMA-ES generations, under a "
+                           f"minute on 2 cores); then the {task.name} run (up to {task.duration:g} s of sim time)",
+                           err=True)
+            bar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
+            try:
+                start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))
+            finally:
+                bar.close()
+            start.save(probe_path, force=force)
+            if talk:
+                click.echo("starting belief: " + ", ".join(f"{k} {fmt(v)}" for k, v in start.values.items()
+                                                          if k in ("box_mass", "box_friction"))
+                           + f"; saved to {probe_path} (next time: --belief {probe_path})", err=True)
+        bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
         try:
-            start = probe_belief(task, seed=seed, threads=threads, progress=lambda g, b: bar.update(g - bar.n))
+            result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant,
+                              view=View([server, recorder]))
         finally:
             bar.close()
-        start.save(probe_path, force=force)
-        if talk:
-            click.echo("starting belief: " + ", ".join(f"{k} {fmt(v)}" for k, v in start.values.items()
-                                                      if k in ("box_mass", "box_friction"))
-                       + f"; saved to {probe_path} (next time: --belief {probe_path})", err=True)
-    bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
-    try:
-        result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant)
+        save_run(result, out_path, task, settings, overwrite=force,
+                 extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})},
+                 more=lambda log: recorder.write(log, ViewFrames(frames.model, frames.regions, frames.goal)))
     finally:
-        bar.close()
-    save_run(result, out_path, task, settings, overwrite=force,
-             extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})})
+        if server is not None:
+            server.close()
     if plot_path is not None:
         plot_run(plot_path, result, task)
     for m in result.warnings:

@@ -55,6 +55,7 @@ from amhe_cli.plants.base import Plant, PlantFailure
 from amhe_cli.plants.sim import SimPlant
 from amhe_cli.io.truth import TRUTH_RECORD
 from amhe_cli.control.gait import GAITS
+from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -311,7 +312,8 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
 
 
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
-             progress: Callable[[float], None] | None = None, plant: Plant | None = None) -> RunResult:
+             progress: Callable[[float], None] | None = None, plant: Plant | None = None,
+             view=None) -> RunResult:
     """Run ``task`` on a plant with the planner in ``settings.mode`` (paper Algorithm 1).
 
     Args:
@@ -322,6 +324,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         plant: the :class:`~amhe_cli.plants.base.Plant` to drive (default: the
             task's sim plant, lock-step unless ``settings.realtime``). It is
             closed at the end, with the reason when the run failed.
+        view: an :class:`~amhe_cli.io.view.View` told, each cycle, the measured state, the plan
+            (mean paths, compute time, lead), the safety state of a plant that has one
+            (``plant.safety_status()``), each change of the planner's belief, and every message;
+            it never blocks (None: no view).
     Returns:
         :class:`RunResult`; ``failure`` says why a run ended early — a plant
         failure (a safety trip, a lost link), Ctrl-C, or an exception in the
@@ -339,9 +345,18 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     reflex = FallReflex(s.reflex, floor=plant.scene.config.robot_floor)
     messages: list[str] = []
     warnings: list[str] = []
+    if view is None:
+        from amhe_cli.io.view import View
+        view = View()
+    clock = [0.0]  # plant time of the current cycle [s], for the view's log
 
     def warn(text: str) -> None:
         messages.append(text), warnings.append(text)
+        view.log(clock[0], text, "warning")
+
+    def note(text: str) -> None:
+        messages.append(text)
+        view.log(clock[0], text, "info")
 
     failure = None
     mhe_deferred = 0
@@ -369,11 +384,25 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         pscene = planner.scene
         v0, sd0 = space.physical(space.mean0, space.std0)
         est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
+        safety_status = getattr(plant, "safety_status", None)
 
-        def swap(values: np.ndarray, std: np.ndarray, t: float) -> None:
+        def show_belief(t: float, v: np.ndarray, sd: np.ndarray, window: np.ndarray | None = None) -> None:
+            truth = None
+            if plant.truth_values is not None:
+                truth = space.physical(space.vector({k: x for k, x in plant.truth_values.items() if k in RUN_PARAMS}))[0]
+            view.belief(t, *belief_message(space.labels, v, sd, window, truth))
+
+        def swap(values: np.ndarray, std: np.ndarray, t: float, window: np.ndarray | None = None) -> None:
             planner.set_params(values)
             v, sd = space.physical(values, std)
             est_t.append(t), est_v.append(v), est_s.append(sd)
+            if view:
+                show_belief(t, v, sd, window)
+
+        if view:
+            view.scene(0.0)
+            view.log(0.0, f"{task.name} {s.mode}: run started", "info")
+            show_belief(0.0, est_v[0], est_s[0])
 
         half_depth = TASK_BOX_SIZE[0] / 2
         sc = plant.scene
@@ -387,20 +416,24 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         m = plant.measure()
         while m.t < task.duration - 1e-9:
             t, q, v = m.t, m.qpos, m.qvel
+            clock[0] = t
+            view.state(t, q)
+            if safety_status is not None and view:
+                view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
             yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
             cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth, t=t,
                                box_yaw=float(quat_to_yaw(q[sc.box_qpos[3:]])))
             text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]])
             if text is not None:
-                (warn if reflex.active else messages.append)(f"t={t:.2f} s: {text}")
+                (warn if reflex.active else note)(f"t={t:.2f} s: {text}")
             if reflex.active:
                 cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw)
             if cmd["phase"] != phase:
                 if phase == "push" and cmd["phase"] == "approach":
                     warn(f"t={t:.2f} s: lost the box, walking back behind it")
                 elif phase is not None and cmd["phase"] == "push":
-                    messages.append(f"t={t:.2f} s: behind the box again, pushing")
+                    note(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
             gait = stand if reflex.active else planner.gait
             state = pscene.full_state(q[None], v[None])[0]
@@ -425,6 +458,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     warn(f"t={t:.2f} s: the planner replans at {hz:.1f} Hz on {planner.pool.nthread} thread(s), "
                          f"under the {MIN_REALTIME_HZ:g} Hz it needs on a robot: give it more cores, or fewer "
                          "planner samples (--config planner.samples)")
+            if view:
+                trunk_path, box_path_pred = planner.mean_path or (None, None)
+                view.plan(t, trunk_path, box_path_pred, plan.compute_time, lead)
             # executed-trajectory metrics at the cycle start
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])
@@ -436,11 +472,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             fired = plant.execute(plan.controls, pdt, plan.compute_time, lead)
             prev_rows, prev_start = plan.controls, t + lead
             for t_ev, ev in fired:
-                messages.append(f"t={t_ev:.2f} s: plant event {ev.param} -> {ev.value}")
+                note(f"t={t_ev:.2f} s: plant event {ev.param} -> {ev.value}")
                 if s.mode == "true":
                     swap(space.vector(plant.truth_values), np.zeros(space.dim), t_ev)
             m = plant.measure()
-            now = m.t
+            now = clock[0] = m.t
             floor = sc.config.robot_floor
             if plant.armed and fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
                                       task.fall_tilt):
@@ -456,7 +492,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 if res is not None:
                     pending = False
                     if not res.skipped:
-                        swap(*_to_planner(res, estimator.mhe.space, space), now)
+                        window = None
+                        if view and res.window_mean is not None:
+                            own = replace(res, mean=res.window_mean)
+                            window = space.physical(_to_planner(own, estimator.mhe.space, space)[0])[0]
+                        swap(*_to_planner(res, estimator.mhe.space, space), now, window)
                 for text in estimator.take_errors():
                     warn(text)
                 if now >= next_update - 1e-9:
@@ -489,6 +529,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     if failure is not None:
         warn(f"run stopped: {failure}")
     traj = plant.recording()
+    view.log(clock[0], f"{task.name} {s.mode}: run ended at t = {clock[0]:.2f} s", "info")
+    if view and getattr(plant, "safety_status", None) is not None:
+        view.safety(clock[0], plant.safety_status())  # the state it ended in: damped, as every Go1 run ends
     box_final = traj.box_pos[-1, :2] if len(traj) else np.asarray(task.box_start, dtype=float)
     e_g = task.goal_error(box_final)
     speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)
@@ -506,7 +549,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
 
 
 def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwrite: bool = False,
-             extra_meta: dict | None = None):
+             extra_meta: dict | None = None, more: Callable | None = None):
     """Write a run as an MCAP in the project schema, plus ``<stem>.truth.csv`` beside it.
 
     The MCAP holds the plant's recording (so ``identify`` and ``mhe-replay``
@@ -516,7 +559,8 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     holds the truth over time in the columns of docs/log_schema.md#ground-truth (``t``,
     ``box_mass_kg``, ``mu_floor_at_box_center``) where the truth is known (not on a
     real robot). The plant's raw streams (``result.extras``: topic -> (t, values,
-    labels), e.g. the Go1's IMU and foot forces) are written as labelled arrays.
+    labels), e.g. the Go1's IMU and foot forces) are written as labelled arrays; ``more`` (called
+    with the open :class:`~amhe_cli.io.writer.McapLog`) adds other channels, e.g. the live view's.
 
     Returns:
         (mcap path, csv path or None).
@@ -545,7 +589,7 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
         meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
     extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]
     extra += [(topic, t, vals, labs) for topic, (t, vals, labs) in result.extras.items()]
-    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite, extra=extra)
+    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite, extra=extra, more=more)
     if csv_path is None:
         return path, None
     ts = result.traj.meta["truth_series"]

@@ -176,6 +176,8 @@ class Planner:
         self.ctrl_lo, self.ctrl_hi = lo.copy(), hi.copy()
         self._t_last: float | None = None
         self._mode: tuple | None = None
+        #: (trunk (H, 3), box (H, 3)) [m]: the mean's predicted paths from the last cycle's state (live view)
+        self.mean_path: tuple[np.ndarray, np.ndarray] | None = None
         m = scene.model
         self._qpos = slice(1, 1 + m.nq)
         self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
@@ -226,6 +228,8 @@ class Planner:
         qpos = states[..., self._qpos]
         qvel = states[..., self._qvel]
         box = qpos[..., sc.box_qpos[:3]]
+        # sample 0 is the current mean: its predicted trunk and box paths, (H, 3) [m], for the live view
+        self.mean_path = (qpos[0][:, sc.base_qpos[:3]], box[0])
         tau = (np.arange(self.settings.horizon) + 1) * self.settings.dt
         J = self.task.stage_cost(qpos[..., sc.base_qpos[:3]], qpos[..., sc.base_qpos[3:]],
                                  qvel[..., sc.base_qvel[:3]], qvel[..., sc.base_qvel[3:]], box, u, ref[None], cmd,

@@ -63,10 +63,12 @@ class ReplayResult:
 
 
 def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False,
-           progress: Callable[[float], None] | None = None) -> ReplayResult:
+           progress: Callable[[float], None] | None = None,
+           on_update: Callable[[Update], None] | None = None) -> ReplayResult:
     """Run ``mhe`` along ``traj`` (see the module docstring for the two clocks).
 
-    ``progress`` is called with the log time reached after each update.
+    ``progress`` is called with the log time reached after each update, ``on_update`` with each
+    :class:`~amhe_cli.estimation.mhe.Update` as it is made (the live view's hook).
     """
     s = mhe.settings
     t_end = float(traj.t[-1])
@@ -80,6 +82,8 @@ def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False
         u = mhe.update(traj, min(start, t_end))
         total += u.compute_time
         updates.append(u)
+        if on_update is not None:
+            on_update(u)
         usable.append(start + u.compute_time if realtime else u.t)
         clock = start + u.compute_time
         due += s.every

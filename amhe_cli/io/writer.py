@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -156,11 +156,10 @@ class McapLog:
     def _schema(self, msgtype: str):
         schema = self._schemas.get(msgtype)
         if schema is None:
-            from rosbags.typesys import Stores, get_typestore
+            # ROS 2 Humble's types plus the view's foxglove_msgs (amhe_cli.io.view)
+            from amhe_cli.io.view import msgdef
 
-            store = get_typestore(Stores.ROS2_HUMBLE)
-            msgdef, _ = store.generate_msgdef(msgtype, ros_version=2)
-            schema = self._writer.register_msgdef(msgtype, msgdef)
+            schema = self._writer.register_msgdef(msgtype, msgdef(msgtype))
             self._schemas[msgtype] = schema
         return schema
 
@@ -330,6 +329,7 @@ def write_mcap(
     metadata: dict[str, dict[str, Any]] | None = None,
     extra: Iterable[tuple[str, Any, Any, Sequence[str]]] | None = None,
     overwrite: bool = False,
+    more: Callable[["McapLog"], Any] | None = None,
 ) -> Path:
     """Write a trajectory (and optional extras) to an MCAP file in the project schema.
 
@@ -341,6 +341,8 @@ def write_mcap(
         extra: labelled arrays to add, each ``(topic, t, values, labels)`` as
             for :meth:`McapLog.write_array`.
         overwrite: replace an existing file.
+        more: called with the open :class:`McapLog` last, to add other channels (the live view's:
+            :meth:`~amhe_cli.io.view.ViewRecorder.write`).
 
     Returns:
         ``path`` as a :class:`~pathlib.Path`.
@@ -354,4 +356,6 @@ def write_mcap(
             log.write_metadata(name, record)
         for topic, t, values, labels in extra or ():
             log.write_array(topic, t, values, labels)
+        if more is not None:
+            more(log)
     return Path(path)

@@ -218,6 +218,8 @@ class Go1Emulator:
             client on this machine can align its own recording to).
         task_delay: seconds from the first servo command to the task's time 0 (the client's
             ramp to the stand: :class:`~amhe_cli.plants.go1.safety.SafetySettings` ``ramp_time``).
+        view: an :class:`~amhe_cli.io.view.View` told the true state every tick (it keeps what its rate
+            allows, never blocks) and each fault and task event as it fires; None: no view.
 
     Raises:
         AmheError: a plant whose step is not 2 ms, a bad fault, an existing
@@ -227,11 +229,12 @@ class Go1Emulator:
     def __init__(self, plant, events, host: str = "127.0.0.1", port: int = 0, pose_to=None, faults=(),
                  record=None, base_body: str = "Go1_body", box_body: str = "Box_body",
                  pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False,
-                 on_event=None, task_delay: float = 2.0):
+                 view=None, on_event=None, task_delay: float = 2.0):
         dt = plant.model.opt.timestep
         if abs(dt - TICK) > 1e-9:
             raise AmheError(f"emulator plant steps at {dt * 1e3:g} ms: expected {TICK * 1e3:g} ms")
         self.plant = plant
+        self.view = view
         self.events = events if events is not None else []
         self.on_event = on_event
         self.task_delay = float(task_delay)
@@ -453,6 +456,9 @@ class Go1Emulator:
             if self.on_event is not None:
                 for ev in fired:
                     self.on_event(float(d.time), ev, time.monotonic())
+            if self.view is not None:
+                self.view.log(self.time, f"emulator: {len(fired)} task event(s) fired "
+                              f"(truth now {self.plant.truth_values})", "info")
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
         self._tau = motor_torques(self._cmd, q, dq, self.limit)
         d.qfrc_applied[:] = 0.0
@@ -478,6 +484,8 @@ class Go1Emulator:
         else:
             self._last_sent = None  # a silence the emulator meant (no client yet, link-loss) is no gap
         self._send_poses()
+        if self.view is not None:
+            self.view.state(self.time, d.qpos)
 
     def _update_faults(self) -> None:
         if self._t_first is None:
@@ -485,6 +493,9 @@ class Go1Emulator:
         for f in self.faults:
             if f.kind not in self._active and self.time >= self._t_first + f.t:
                 self._active.add(f.kind)
+                if self.view is not None:
+                    self.view.log(self.time, f"emulator: fault {f.kind} injected at {f.t:g} s after the first "
+                                  "command", "warning")
 
     def _state(self) -> LowState:
         """The LowState of the current plant state (see the module docstring)."""

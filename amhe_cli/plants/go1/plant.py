@@ -208,6 +208,15 @@ class Go1Plant(Plant):
         self.relay.set_plan(controls, dt, self._measured_at + lead)
         return []
 
+    def safety_status(self) -> dict:
+        """The safety layer's state for the live view: ``ok`` (servoing or ramping), ``hold`` (stale plan:
+        soft hold), ``stand`` (stale motion capture), ``damp`` (tripped), ``clamped`` (targets clamped so
+        far), each 0/1 or a count."""
+        phase = self.relay.phase
+        return {"ok": float(phase not in ("hold", "stand", "damp")), "hold": float(phase == "hold"),
+                "stand": float(phase == "stand"), "damp": float(phase == "damp"),
+                "clamped": float(self.safety.clamped)}
+
     def take_messages(self) -> list[str]:
         """Relay phase changes, pose warnings and mocap freshness changes since the last call."""
         with self._lock:
