@@ -23,7 +23,7 @@ from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.control.planner import PlannerSettings, spline_basis
 from amhe_cli.estimation.sampling import mppi_weights
 from amhe_cli.model.scene import FOOT_RADIUS, STAND_JOINTS
-from amhe_cli.control.tasks import (BASE_HEIGHT, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, Event,
+from amhe_cli.control.tasks import (BASE_HEIGHT, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, CostWeights, Event,
                                     get_task)
 
 #: small planner: enough to exercise every code path, cheap enough for a test
@@ -371,6 +371,27 @@ def test_stage_cost_penalises_a_fallen_base():
                         np.zeros((2, 3)), np.tile(box, (2, 1)), np.tile(STAND_JOINTS, (2, 1)),
                         np.tile(STAND_JOINTS, (2, 1)), cmd)
     np.testing.assert_allclose(c, [nominal, fallen])
+
+
+def test_approach_keeps_the_trunk_out_of_the_box_s_reach_and_pushing_does_not():
+    """Walking around the box (approach phase) a trunk within KEEP_OUT of the box's centre costs more, the nearer
+    the more; pushing, where the head must touch the box, it costs nothing extra."""
+    from amhe_cli.control.tasks import KEEP_OUT
+    task = get_task("t1")
+    box = np.array([1.0, 0.0])
+    past = task.command(np.array([1.0, 0.45]), 0.0, box, HALF_DEPTH)  # beside the box: approach
+    push = task.command(np.array([0.45, 0.0]), 0.0, box, HALF_DEPTH)
+    assert past["phase"] == "approach" and push["phase"] == "push"
+
+    def cost(cmd, xy, keep_out):
+        t = get_task("t1", weights=CostWeights(keep_out=keep_out))
+        return float(t.stage_cost(np.array([*xy, BASE_HEIGHT]), UPRIGHT, np.zeros(3), np.zeros(3),
+                                  np.array([*box, 0.19]), STAND_JOINTS, STAND_JOINTS, cmd))
+    for xy, extra in (((1.0, 0.45), 500 * (KEEP_OUT - 0.45) ** 2), ((1.0, 0.35), 500 * (KEEP_OUT - 0.35) ** 2),
+                      ((1.0, 0.60), 0.0)):
+        assert cost(past, xy, 500.0) - cost(past, xy, 0.0) == pytest.approx(extra)
+    assert cost(push, (0.45, 0.0), 500.0) == cost(push, (0.45, 0.0), 0.0)
+    assert CostWeights().keep_out > 0
 
 
 def test_stage_cost_penalises_a_tipped_box_not_its_yaw():

@@ -55,6 +55,9 @@ LINE_GAIN, MAX_LINE_BEND = 1.5, 0.35
 #: Approach phase: the pre-push point lies this much behind the pushing pose (and this much more
 #: to the side when going around the box) [m].
 APPROACH_MARGIN = 0.15
+#: Approach phase: the trunk's centre keeps this far from the box's centre [m] (``weights.keep_out``): the box's
+#: half diagonal (0.27 for the 0.38 m cube), the trunk's half width with its legs (0.15) and 0.1 m of margin.
+KEEP_OUT = 0.52
 #: Approach phase: heading error [rad] above which the robot turns on the spot.
 TURN_IN_PLACE = 0.6
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
@@ -103,6 +106,10 @@ class CostWeights:
     #: planted feet. At the walking tasks' 20 the planner leaned the trunk 8 cm toward the box, out of the
     #: feet's triangle, and the pushing foot went down to bear weight and dragged on the floor
     stance: float = 200.0
+    #: approach phase only: the trunk inside :data:`KEEP_OUT` of the box's centre, per m² of intrusion. The
+    #: recorded falls happened walking around the box (docs/fall_prevention.md); T2 true, seeds 0, 2, 4, 5, 7,
+    #: 30 s: falls 2 -> 1 (seed 7 reached the goal where it fell), the other seeds' successes kept
+    keep_out: float = 500.0
     angvel: float = 0.5
     effort: float = 0.2
     fall: float = 1000.0
@@ -413,6 +420,9 @@ class Task:
         c += w.angvel * np.sum(base_angvel[..., :2] ** 2, axis=-1)
         c += w.effort * np.sum((ctrl - ref) ** 2, axis=-1)
         c += w.fall * (height < self.unsafe_height)
+        if w.keep_out and cmd.get("phase") == "approach":
+            near = np.linalg.norm(base_pos[..., :2] - cmd["box"], axis=-1)
+            c += w.keep_out * np.maximum(KEEP_OUT - near, 0.0) ** 2
         if box_quat is not None:
             c += w.box_tilt * _tilt(box_quat)
             if "box_yaw" in cmd:
