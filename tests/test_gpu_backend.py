@@ -85,6 +85,21 @@ def test_cli_device_cuda_without_gpu_is_one_line(capsys):
     one_line_error(res, "--device cuda", "amhe[gpu]")
 
 
+@pytest.mark.skipif(dev.gpu_packages() is None, reason="amhe[gpu] installed")
+def test_warp_backend_without_warp_is_one_line(scene):
+    with pytest.raises(AmheError, match=r"not installed \(pip install 'amhe\[gpu\]'\)"):
+        rw.WarpRollout(scene.model)
+
+
+def test_mhe_device_config_key_is_checked(scene):
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    with pytest.raises(AmheError, match="mhe device 'gpu'"):
+        MHESettings(device="gpu").check()
+    space = ParameterSpace(scene, ("box_mass",))
+    with MovingHorizonEstimator(scene, space, MHESettings(device="cpu"), nthread=1) as mhe:
+        assert isinstance(mhe.pool, RolloutPool)
+
+
 def test_cli_device_unknown_is_refused(capsys):
     code, _, err = amhe(capsys, "identify", "--device", "tpu")
     assert code == 2 and "tpu" in err and "Traceback" not in err
@@ -151,19 +166,16 @@ def test_buffer_sizes_count_pairs_contacts_and_rows():
 
 
 def test_buffer_sizes_bound_what_the_scene_uses(scene, clips):
-    """Along real clips of a push (feet on the floor, head on the box) the CPU never needs more."""
-    ncon, nrow = rw.buffer_sizes(scene.model)
-    m = scene.model
-    d = mujoco.MjData(m)
-    most_con = most_efc = 0
-    for k in range(len(clips)):
-        mujoco.mj_setState(m, d, clips.initial_state[k], mujoco.mjtState.mjSTATE_FULLPHYSICS)
-        for t in range(int(clips.horizon[k])):
-            d.ctrl[:] = clips.control[k, t]
-            mujoco.mj_step(m, d)
-            most_con, most_efc = max(most_con, d.ncon), max(most_efc, d.nefc)
-    assert most_con >= 4 and most_efc > 24  # the clips do touch
-    assert ncon >= most_con and nrow >= most_efc
+    """Along real clips of a push (feet on the floor, head on the box) the CPU never needs more than the
+    bound, and the chosen sizes hold twice the need but stay far below the bound."""
+    bound = rw.buffer_sizes(scene.model)
+    most = rw.measured_sizes(scene.model, clips.initial_state, clips.control, clips.horizon)
+    assert most[0] >= 4 and most[1] > 24  # the clips do touch
+    assert bound[0] >= most[0] and bound[1] >= most[1]
+    chosen = rw.choose_sizes(bound, most)
+    assert all(2 * m <= c < b for m, c, b in zip(most, chosen, bound)), (most, chosen, bound)
+    assert all(c % 16 == 0 for c in chosen)
+    assert rw.choose_sizes((20, 30), (15, 25)) == (20, 30)  # never above the bound
 
 
 # -- the box's zero friction and refusals --------------------------------------------------------
@@ -233,8 +245,17 @@ def test_gpu_cost_agrees_with_cpu(scene, clips):
 
 @pytest.mark.gpu
 @gpu
-def test_gpu_overflow_is_raised(scene, clips):
+def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
     space = ParameterSpace(scene, ("box_mass",))
-    with rw.WarpRollout(scene.model, nconmax=1, njmax=8) as w:
+    with rw.WarpRollout(scene.model, nconmax=1, njmax=8) as w:  # sizes given: raise
         with pytest.raises(AmheError, match="ran out of buffer space"):
             w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+    with rw.WarpRollout(scene.model) as w, RolloutPool(scene.model, 1) as pool:  # chosen sizes: grow, repeat
+        w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+        w.nconmax, w.njmax = 2, 16
+        w._allocate(len(clips))
+        qg, _, _ = w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+        qc, _, _ = pool.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control,
+                                           clips.horizon)
+        assert w.njmax > 16 and "growing" in capsys.readouterr().err
+        assert np.abs(qg - qc)[..., scene.box_qpos[:2]].max() < 1e-3

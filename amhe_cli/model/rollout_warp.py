@@ -15,11 +15,14 @@ MuJoCo Warp model with ``B · N_c`` worlds (world ``b · N_c + k`` = candidate
   included) and the batched fields are copied from it, so both backends see the
   same derived constants; :func:`check_space` refuses a parameter space that
   writes any other field.
-* **Buffers.** Contact and constraint buffers are sized from the scene
-  (:func:`buffer_sizes`: every geom pair that can touch, at the most contacts
-  its types make, and the rows each contact and each joint limit, friction
-  loss and equality adds). MuJoCo Warp flags an overflow per world; any flag
-  raises :class:`~amhe_cli.errors.AmheError` — never a silent wrong answer.
+* **Buffers.** Contact and constraint buffers are sized from the scene: an
+  upper bound (:func:`buffer_sizes`: every geom pair that can touch, at the
+  most contacts its types make, and the rows each contact and each joint
+  limit, friction loss and equality adds) caps twice what the clips need at
+  the prior (:func:`measured_sizes`, :func:`choose_sizes`). MuJoCo Warp flags
+  an overflow per world; a flagged batch is repeated with larger buffers, and
+  at the bound (or with sizes given) it raises
+  :class:`~amhe_cli.errors.AmheError` — never a silent wrong answer.
 * **The box's zero friction.** The CPU scene gives the box geom friction 0 so
   MuJoCo's max rule lets the robot geoms' coefficient (or the feet's, by
   priority) set robot–box friction, while the box–floor friction is an explicit
@@ -153,6 +156,44 @@ def buffer_sizes(model: mujoco.MjModel) -> tuple[int, int]:
     return max(ncon, 1), max(nrow, 1)
 
 
+def measured_sizes(model: mujoco.MjModel, initial_state: np.ndarray, control: np.ndarray,
+                   horizon: np.ndarray) -> tuple[int, int]:
+    """Most contacts and constraint rows one world needs along the clips, at the model's own parameters.
+
+    Steps each clip on the CPU (``mj_step``) from its recorded start with its
+    recorded controls.
+
+    Args:
+        initial_state: (N_c, nstate) mjSTATE_FULLPHYSICS; control: (N_c, H_max, nu); horizon: (N_c,).
+    Returns:
+        (most ``ncon``, most ``nefc``) over every step of every clip.
+    """
+    d = mujoco.MjData(model)
+    ncon = nefc = 0
+    for k in range(len(horizon)):
+        mujoco.mj_setState(model, d, initial_state[k], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        for t in range(int(horizon[k])):
+            d.ctrl[:] = control[k, t]
+            mujoco.mj_step(model, d)
+            ncon, nefc = max(ncon, d.ncon), max(nefc, d.nefc)
+    return ncon, nefc
+
+
+def choose_sizes(bound: tuple[int, int], measured: tuple[int, int]) -> tuple[int, int]:
+    """Buffer sizes ``(nconmax, njmax)``: twice what the clips need at the prior (at least 16 more),
+    rounded up to 16, never above the scene's :func:`buffer_sizes` bound.
+
+    Why not the bound itself: MuJoCo Warp launches many solver kernels over
+    ``nworld × njmax`` threads, so a bound 10× the need (876 rows against ~60
+    for the Go1 and box) costs time every step. Candidates far from the prior
+    may need more: an overflow then grows the buffers toward the bound and the
+    call is repeated (:class:`WarpRollout`), never answered from a truncated step.
+    """
+    def size(b, m):
+        return int(min(b, 16 * np.ceil(max(2 * m, m + 16) / 16)))
+    return size(bound[0], measured[0]), size(bound[1], measured[1])
+
+
 def friction_floor(model: mujoco.MjModel) -> tuple[list[int], str | None]:
     """Geoms whose friction below ``MJ_MINMU`` can be raised to it without changing any contact.
 
@@ -283,7 +324,10 @@ class WarpRollout:
     Args:
         model: the scene's template ``MjModel`` (never modified).
         nconmax, njmax: per-world contact and constraint buffer sizes
-            (default: :func:`buffer_sizes`).
+            (default: :func:`choose_sizes` from the first call's clips, grown on
+            overflow up to :func:`buffer_sizes`; given: fixed, and an overflow raises).
+        device: Warp device; ``"cpu"`` (Warp's LLVM back end, no CUDA graph,
+            slow) exists to debug the backend's plumbing on a machine without a GPU.
 
     Raises:
         AmheError: ``amhe[gpu]`` not installed, no CUDA device, or a scene the
@@ -294,24 +338,27 @@ class WarpRollout:
     the device; results come back as float64.
     """
 
-    def __init__(self, model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None):
+    def __init__(self, model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None,
+                 device: str = "cuda:0"):
         try:
             import warp as wp
+            wp.config.quiet = True  # before mujoco_warp's import initialises Warp: amhe says what matters
             import mujoco_warp as mjw
         except ImportError as e:
             raise AmheError(f"--device cuda: {e.name} not installed (pip install 'amhe[gpu]')") from None
-        wp.config.quiet = True
         wp.init()
-        if wp.get_cuda_device_count() < 1:
+        if device.startswith("cuda") and wp.get_cuda_device_count() < 1:
             raise AmheError("--device cuda: no CUDA device found")
         self.wp, self.mjw = wp, mjw
         self.template = model
         self.host = warp_host_model(model)
         self._raise, _ = friction_floor(model)
-        sizes = buffer_sizes(model)
-        self.nconmax = int(nconmax or sizes[0])
-        self.njmax = int(njmax or sizes[1])
-        self.device = wp.get_device("cuda:0")
+        self.bound = buffer_sizes(model)
+        self._fixed = nconmax is not None or njmax is not None  # sizes given: an overflow raises
+        # 0: chosen from the first call's clips (choose_sizes); one of them given: the other at the bound
+        self.nconmax = int(nconmax or (self.bound[0] if self._fixed else 0))
+        self.njmax = int(njmax or (self.bound[1] if self._fixed else 0))
+        self.device = wp.get_device(device)
         self._models: list[mujoco.MjModel] = []
         self._spaces_checked: set[int] = set()
         self._cap = 0
@@ -321,8 +368,7 @@ class WarpRollout:
 
     def describe(self) -> str:
         """One line for the device announcement."""
-        return (f"MuJoCo Warp {getattr(self.mjw, '__version__', '?')} on {self.device.name}, "
-                f"nconmax {self.nconmax}, njmax {self.njmax} per world")
+        return f"MuJoCo Warp {getattr(self.mjw, '__version__', '?')} on {self.device.name}"
 
     def __enter__(self) -> "WarpRollout":
         return self
@@ -364,7 +410,6 @@ class WarpRollout:
     def _graph(self, hmax: int):
         """The captured graph of ``hmax`` steps (captured on first need; buffers grown as needed)."""
         wp, mjw = self.wp, self.mjw
-        from amhe_cli.model import _warp_kernels as K
         m = self.host
         if hmax > self._hcap:
             with wp.ScopedDevice(self.device):
@@ -383,17 +428,34 @@ class WarpRollout:
                 if first:  # load every module outside the capture
                     mjw.step(self.m, self.d)
                     wp.synchronize()
-                with wp.ScopedCapture() as cap:
-                    for t in range(hmax):
-                        wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.ctrl_in], outputs=[self.d.ctrl])
-                        mjw.step(self.m, self.d)
-                        wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, self.d.qpos, self.d.qvel],
-                                  outputs=[self.qpos_out, self.qvel_out])
+                if self.device.is_cuda:
+                    with wp.ScopedCapture() as cap:
+                        self._steps(hmax)
+                    graph = cap.graph
+                else:
+                    graph = hmax  # no graphs off CUDA: _launch steps eagerly
             if first:
                 self.compile_time = time.perf_counter() - t0
                 print(f"amhe: MuJoCo Warp kernels ready in {self.compile_time:.1f} s", file=sys.stderr, flush=True)
-            self._graphs[hmax] = cap.graph
+            self._graphs[hmax] = graph
         return self._graphs[hmax]
+
+    def _steps(self, hmax: int) -> None:
+        """Launch ``hmax`` steps: each sets the step's control, steps every world, records its state."""
+        wp, mjw, m = self.wp, self.mjw, self.host
+        from amhe_cli.model import _warp_kernels as K
+        for t in range(hmax):
+            wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.ctrl_in], outputs=[self.d.ctrl])
+            mjw.step(self.m, self.d)
+            wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, self.d.qpos, self.d.qvel],
+                      outputs=[self.qpos_out, self.qvel_out])
+
+    def _launch(self, graph) -> None:
+        if self.device.is_cuda:
+            self.wp.capture_launch(graph)
+        else:
+            with self.wp.ScopedDevice(self.device):
+                self._steps(graph)
 
     # -- the backend interface -------------------------------------------------
     def rollout_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
@@ -417,6 +479,9 @@ class WarpRollout:
             self._spaces_checked.add(id(space))
         B, n = P.shape[0], len(horizon)
         nworld, hmax = B * n, int(control.shape[1])
+        if not self.njmax:
+            self.nconmax, self.njmax = choose_sizes(self.bound, measured_sizes(self.template, initial_state,
+                                                                               control, horizon))
         if nworld > self._cap:
             self._allocate(nworld)
         graph = self._graph(hmax)
@@ -441,16 +506,22 @@ class WarpRollout:
         ctrl[:, :hmax] = control[clip]
         ctrl[:, hmax:] = control[clip, -1:]
         self.ctrl_in.assign(ctrl)
-        wp.capture_launch(graph)
+        self._launch(graph)
         qpos = self.qpos_out.numpy()[:nworld, :hmax].astype(float).reshape(B, n, hmax, m.nq)
         qvel = self.qvel_out.numpy()[:nworld, :hmax].astype(float).reshape(B, n, hmax, m.nv)
         flags = d.overflow.numpy()[:nworld]
         bad = {name: int(np.count_nonzero(flags & bit)) for bit, name in OVERFLOW_BITS.items()}
         bad = {k: v for k, v in bad.items() if v}
         if bad:
-            raise AmheError(f"--device cuda: MuJoCo Warp ran out of buffer space in {nworld} worlds: "
-                            + ", ".join(f"{k} in {v}" for k, v in bad.items())
-                            + f" (nconmax {self.nconmax}, njmax {self.njmax}); use --device cpu")
+            what = ", ".join(f"{k} in {v} of {nworld} worlds" for k, v in bad.items())
+            if self._fixed or (self.nconmax, self.njmax) == tuple(self.bound):
+                raise AmheError(f"--device cuda: MuJoCo Warp ran out of buffer space: {what} "
+                                f"(nconmax {self.nconmax}, njmax {self.njmax}); use --device cpu")
+            self.nconmax, self.njmax = (min(self.bound[0], 2 * self.nconmax), min(self.bound[1], 2 * self.njmax))
+            print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
+                  f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
+            self._allocate(nworld)
+            return self.rollout_candidates(space, P, initial_state, control, horizon)
         for k, h in enumerate(np.asarray(horizon, dtype=int)):
             qpos[:, k, h:] = qpos[:, k, h - 1:h]
             qvel[:, k, h:] = qvel[:, k, h - 1:h]
