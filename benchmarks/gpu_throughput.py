@@ -76,7 +76,8 @@ def main(argv=None) -> None:
     ap.add_argument("--wide", default="48,96", help="identify on cuda with this POPSIZE,CLIPS too")
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: agreement,throughput,identify")
     ap.add_argument("--out", default=os.environ.get("OUT", "."), help="folder of gpu_throughput.txt")
-    ap.add_argument("--warp-device", default="cuda:0", help="Warp device (cpu: debug the script without a GPU)")
+    ap.add_argument("--warp-device", default=None, help="Warp device (default cuda:0, or $AMHE_WARP_DEVICE; "
+                    "cpu: debug the script without a GPU)")
     a = ap.parse_args(argv)
     Path(a.out).mkdir(parents=True, exist_ok=True)
     _sink = open(Path(a.out) / "gpu_throughput.txt", "a")

@@ -17,6 +17,7 @@ choice is printed once per process to stderr.
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 
 from amhe_cli.errors import AmheError
@@ -53,10 +54,18 @@ def gpu_packages() -> str | None:
     return None
 
 
+def warp_device() -> str:
+    """The Warp device the ``cuda`` backend uses: ``cuda:0``, or ``$AMHE_WARP_DEVICE`` (``cpu`` runs the
+    same kernels on Warp's CPU back end, slowly: a debugging aid on machines without a GPU)."""
+    return os.environ.get("AMHE_WARP_DEVICE", "cuda:0")
+
+
 def cuda_device() -> str | None:
     """Name of the first CUDA device Warp sees, or None (also when Warp is not installed)."""
     if gpu_packages() is not None:
         return None
+    if warp_device() == "cpu":
+        return "Warp CPU device (AMHE_WARP_DEVICE=cpu)"
     try:
         import warp as wp
         wp.config.quiet = True
@@ -123,7 +132,7 @@ def make_backend(model, device: str | None = None, nthread: int | None = None):
     dev = default_device() if device is None else choose_device(device)
     if dev == "cuda":
         from amhe_cli.model.rollout_warp import WarpRollout
-        backend = WarpRollout(model)
+        backend = WarpRollout(model, device=warp_device())
     else:
         from amhe_cli.model.rollout import RolloutPool
         backend = RolloutPool(model, nthread)

@@ -326,8 +326,9 @@ class WarpRollout:
         nconmax, njmax: per-world contact and constraint buffer sizes
             (default: :func:`choose_sizes` from the first call's clips, grown on
             overflow up to :func:`buffer_sizes`; given: fixed, and an overflow raises).
-        device: Warp device; ``"cpu"`` (Warp's LLVM back end, no CUDA graph,
-            slow) exists to debug the backend's plumbing on a machine without a GPU.
+        device: Warp device (default :func:`~amhe_cli.model.device.warp_device`:
+            ``cuda:0``); ``"cpu"`` (Warp's LLVM back end, no CUDA graph, slow)
+            exists to debug the backend on a machine without a GPU.
 
     Raises:
         AmheError: ``amhe[gpu]`` not installed, no CUDA device, or a scene the
@@ -339,7 +340,7 @@ class WarpRollout:
     """
 
     def __init__(self, model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None,
-                 device: str = "cuda:0"):
+                 device: str | None = None):
         try:
             import warp as wp
             wp.config.quiet = True  # before mujoco_warp's import initialises Warp: amhe says what matters
@@ -347,6 +348,8 @@ class WarpRollout:
         except ImportError as e:
             raise AmheError(f"--device cuda: {e.name} not installed (pip install 'amhe[gpu]')") from None
         wp.init()
+        from amhe_cli.model.device import warp_device
+        device = device or warp_device()
         if device.startswith("cuda") and wp.get_cuda_device_count() < 1:
             raise AmheError("--device cuda: no CUDA device found")
         self.wp, self.mjw = wp, mjw
@@ -468,9 +471,12 @@ class WarpRollout:
         last state, as on the CPU.
 
         Raises:
-            AmheError: a contact or constraint buffer overflowed in some world
-                (the count and which buffer), or ``space`` writes a field this
-                backend does not batch (:func:`check_space`).
+            AmheError: with buffer sizes given, a contact or constraint buffer
+                overflowed in some world (the count and which buffer); or
+                ``space`` writes a field this backend does not batch
+                (:func:`check_space`). Chosen sizes grow on overflow instead, and
+                worlds that overflow the scene's bound come back as NaN (the
+                cost module's "diverged") with a warning.
         """
         wp = self.wp
         P = np.atleast_2d(P)
@@ -514,9 +520,19 @@ class WarpRollout:
         bad = {k: v for k, v in bad.items() if v}
         if bad:
             what = ", ".join(f"{k} in {v} of {nworld} worlds" for k, v in bad.items())
-            if self._fixed or (self.nconmax, self.njmax) == tuple(self.bound):
+            if self._fixed:
                 raise AmheError(f"--device cuda: MuJoCo Warp ran out of buffer space: {what} "
                                 f"(nconmax {self.nconmax}, njmax {self.njmax}); use --device cpu")
+            if (self.nconmax, self.njmax) == tuple(self.bound):
+                # more than the scene's bound: only a rollout gone wild gets here; its states become NaN,
+                # which the cost module charges as diverged, and the user is told
+                lost = (flags & sum(OVERFLOW_BITS)) != 0
+                qpos.reshape(nworld, hmax, -1)[lost] = np.nan
+                qvel.reshape(nworld, hmax, -1)[lost] = np.nan
+                print(f"amhe: warning: MuJoCo Warp buffers overflowed at the scene's bound ({what}): those "
+                      "rollouts count as diverged", file=sys.stderr, flush=True)
+                bad = {}
+        if bad:
             self.nconmax, self.njmax = (min(self.bound[0], 2 * self.nconmax), min(self.bound[1], 2 * self.njmax))
             print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
                   f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
