@@ -39,12 +39,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from amhe_cli.estimation.clips import sample_clips  # noqa: E402
 from amhe_cli.estimation.cost import RolloutCost  # noqa: E402
 from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, IdentifySettings, identify  # noqa: E402
 from amhe_cli.estimation.problem import load_problem  # noqa: E402
-from amhe_cli.io.truth import metadata_truth  # noqa: E402
+from identify_accuracy import truth_of  # noqa: E402  (benchmarks/: <LOG stem>.truth.yaml or metadata)
 from amhe_cli.model import device as dev  # noqa: E402
 from amhe_cli.model.rollout import RolloutPool, default_threads  # noqa: E402
 from amhe_cli.model.rollout_warp import WarpRollout  # noqa: E402
@@ -86,7 +87,7 @@ def main(argv=None) -> None:
     t0 = time.perf_counter()
     problem = load_problem(a.log)
     scene, space, traj = problem.scene, problem.space, problem.traj
-    truth = metadata_truth(traj) or {}
+    truth = truth_of(a.log, None)
     clips = sample_clips(traj, scene, a.clips, CLEAN_LOG_CLIPS[1], rng=np.random.default_rng(0))
     nthread = default_threads()
     emit(f"setup log={Path(a.log).name} clips={len(clips)} steps_per_candidate={clips.steps} "

@@ -261,3 +261,8 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
                                            clips.horizon)
         assert w.njmax > 16 and "growing" in capsys.readouterr().err
         assert np.median(np.abs(qg - qc)[..., scene.box_qpos[:2]]) < 1e-5
+        w.bound = w.nconmax, w.njmax = (2, 16)  # at the bound: the overflowed worlds read as diverged
+        w._allocate(len(clips))
+        with RolloutCost(scene, space, clips, pool=w) as cost:
+            br = cost.evaluate(space.mean0[None])
+        assert br.diverged.any() and "count as diverged" in capsys.readouterr().err
