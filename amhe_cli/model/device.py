@@ -68,7 +68,8 @@ def cuda_device() -> str | None:
         return "Warp CPU device (AMHE_WARP_DEVICE=cpu)"
     try:
         import warp as wp
-        wp.config.quiet = True
+        from amhe_cli.model.rollout_warp import _quiet
+        _quiet(wp)
         wp.init()
         if wp.get_cuda_device_count() < 1:
             return None

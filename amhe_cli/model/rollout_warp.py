@@ -80,6 +80,14 @@ MAX_CONTACTS = {
 }
 
 
+def _quiet(wp) -> None:
+    """Keep Warp's greeting and per-module load lines off stderr (amhe prints what matters)."""
+    if hasattr(wp, "LOG_WARNING"):  # warp-lang >= 1.19
+        wp.config.log_level = wp.LOG_WARNING
+    else:
+        wp.config.quiet = True
+
+
 def _array_fields(model: mujoco.MjModel) -> list[str]:
     return [a for a in dir(model) if not a.startswith("_") and isinstance(getattr(model, a, None), np.ndarray)]
 
@@ -343,7 +351,7 @@ class WarpRollout:
                  device: str | None = None):
         try:
             import warp as wp
-            wp.config.quiet = True  # before mujoco_warp's import initialises Warp: amhe says what matters
+            _quiet(wp)  # before mujoco_warp's import initialises Warp: amhe says what matters
             import mujoco_warp as mjw
         except ImportError as e:
             raise AmheError(f"--device cuda: {e.name} not installed (pip install 'amhe[gpu]')") from None
@@ -424,8 +432,9 @@ class WarpRollout:
         if hmax not in self._graphs:
             first = self.compile_time is None
             if first:
-                print("amhe: compiling MuJoCo Warp kernels (first use; cached in ~/.cache/warp or "
-                      "$WARP_CACHE_PATH, about 3 min when the cache is cold)…", file=sys.stderr, flush=True)
+                print("amhe: compiling MuJoCo Warp kernels, or loading them from Warp's kernel cache "
+                      "(~/.cache/warp, or $WARP_CACHE_PATH): minutes the first time, seconds after…",
+                      file=sys.stderr, flush=True)
             t0 = time.perf_counter()
             with wp.ScopedDevice(self.device):
                 if first:  # load every module outside the capture
