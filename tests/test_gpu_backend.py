@@ -100,6 +100,14 @@ def test_mhe_device_config_key_is_checked(scene):
         assert isinstance(mhe.pool, RolloutPool)
 
 
+def test_run_config_takes_the_mhe_device_key():
+    from amhe_cli.control.evaluate import run_settings
+    _, settings = run_settings("t1", "adaptive", {"mhe": {"device": "cpu"}})
+    assert settings.mhe.device == "cpu"
+    with pytest.raises(AmheError, match="mhe device"):
+        run_settings("t1", "adaptive", {"mhe": {"device": "gpu"}})
+
+
 def test_cli_device_unknown_is_refused(capsys):
     code, _, err = amhe(capsys, "identify", "--device", "tpu")
     assert code == 2 and "tpu" in err and "Traceback" not in err
