@@ -42,6 +42,7 @@ them in seconds. The first use says so on stderr, with the time it took.
 from __future__ import annotations
 
 import copy
+import hashlib
 import sys
 import time
 
@@ -250,6 +251,8 @@ def check_scene(model: mujoco.MjModel) -> None:
         why.append(f"{m.nflex} flexes")
     if m.nplugin:
         why.append(f"{m.nplugin} plugins")
+    if m.na:
+        why.append(f"actuator activations (na={m.na}: clip starts carry qpos and qvel only)")
     if m.opt.integrator not in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_RK4,
                                 mujoco.mjtIntegrator.mjINT_IMPLICITFAST, mujoco.mjtIntegrator.mjINT_IMPLICIT):
         why.append(f"integrator {mujoco.mjtIntegrator(m.opt.integrator).name}")
@@ -401,34 +404,68 @@ class WarpRollout:
 
     # -- device set-up ---------------------------------------------------------
     def _allocate(self, nworld: int) -> None:
+        """Model, data and per-world field views for ``world_capacity(nworld)`` worlds (drops graphs and buffers)."""
         wp, mjw = self.wp, self.mjw
         cap = world_capacity(nworld)
         batch = {f: cap for f in BATCHED_FIELDS if getattr(self.host, f).size}
         try:
             with wp.ScopedDevice(self.device):
                 self.m = mjw.put_model(self.host, batch_sizes=batch)
-                self.m.opt.warn_overflow = 0  # overflows are read from d.overflow and raised, not printed
+                self.m.opt.warn_overflow = 0  # overflows are read from d.overflow and handled, not printed
                 self.d = mjw.put_data(self.host, mujoco.MjData(self.host), nworld=cap, nconmax=self.nconmax,
                                       njmax=self.njmax)
+                # each batched field seen as (cap, k) floats, for the candidate -> world expansion
+                self._flat = {}
+                for f in batch:
+                    arr = getattr(self.m, f)
+                    if not arr.is_contiguous or arr.shape[0] != cap:
+                        raise NotImplementedError(f"model field {f} is not a contiguous per-world array")
+                    k = arr.size * wp.types.type_size_in_bytes(arr.dtype) // 4 // cap
+                    self._flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
+                self.nclip = wp.zeros(1, dtype=int)
         except (NotImplementedError, ValueError) as e:
             raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
                             "(use --device cpu)") from None
         self._cap = cap
         self._graphs.clear()
-        self._hcap = 0
-        self.qpos_out = self.qvel_out = self.ctrl_in = None
+        self._hcap = self._ncap = 0
+        self._clipkey = None
+
+    def _buffers(self, nclip: int, hmax: int) -> None:
+        """Clip inputs (N_c, ...) and state outputs (worlds, H, ...) at least this large (drops graphs if grown)."""
+        if hmax <= self._hcap and nclip <= self._ncap:
+            return
+        wp, m = self.wp, self.host
+        self._hcap, self._ncap = max(hmax, self._hcap), max(nclip, self._ncap)
+        with wp.ScopedDevice(self.device):
+            self.init_in = wp.zeros((self._ncap, 1 + m.nq + m.nv), dtype=float)
+            self.ctrl_in = wp.zeros((self._ncap, self._hcap, m.nu), dtype=float)
+            self.qpos_out = wp.zeros((self._cap, self._hcap, m.nq), dtype=float)
+            self.qvel_out = wp.zeros((self._cap, self._hcap, m.nv), dtype=float)
+        self._graphs.clear()
+        self._clipkey = None
+
+    def _upload_clips(self, initial_state: np.ndarray, control: np.ndarray) -> None:
+        """Recorded starts and controls to the device, once per clip set (a changed set is uploaded anew)."""
+        key = (initial_state.shape, control.shape,
+               hashlib.blake2b(np.ascontiguousarray(initial_state).tobytes()
+                               + np.ascontiguousarray(control).tobytes(), digest_size=16).digest())
+        if key == self._clipkey:
+            return
+        m, n, hmax = self.host, len(initial_state), control.shape[1]
+        init = np.zeros((self._ncap, 1 + m.nq + m.nv), dtype=np.float32)
+        init[:n] = initial_state[:, :1 + m.nq + m.nv]
+        ctrl = np.zeros((self._ncap, self._hcap, m.nu), dtype=np.float32)
+        ctrl[:n, :hmax] = control
+        ctrl[:n, hmax:] = control[:, -1:]
+        self.init_in.assign(init)
+        self.ctrl_in.assign(ctrl)
+        self.nclip.assign(np.array([n], dtype=np.int32))
+        self._clipkey = key
 
     def _graph(self, hmax: int):
-        """The captured graph of ``hmax`` steps (captured on first need; buffers grown as needed)."""
+        """The step loop of ``hmax`` steps, captured as a CUDA graph on first need."""
         wp, mjw = self.wp, self.mjw
-        m = self.host
-        if hmax > self._hcap:
-            with wp.ScopedDevice(self.device):
-                self.ctrl_in = wp.zeros((self._cap, hmax, m.nu), dtype=float)
-                self.qpos_out = wp.zeros((self._cap, hmax, m.nq), dtype=float)
-                self.qvel_out = wp.zeros((self._cap, hmax, m.nv), dtype=float)
-            self._hcap = hmax
-            self._graphs.clear()
         if hmax not in self._graphs:
             first = self.compile_time is None
             if first:
@@ -438,7 +475,7 @@ class WarpRollout:
             t0 = time.perf_counter()
             with wp.ScopedDevice(self.device):
                 if first:  # load every module outside the capture
-                    mjw.step(self.m, self.d)
+                    self._steps(1)
                     wp.synchronize()
                 if self.device.is_cuda:
                     with wp.ScopedCapture() as cap:
@@ -453,13 +490,15 @@ class WarpRollout:
         return self._graphs[hmax]
 
     def _steps(self, hmax: int) -> None:
-        """Launch ``hmax`` steps: each sets the step's control, steps every world, records its state."""
-        wp, mjw, m = self.wp, self.mjw, self.host
+        """Reset every world to its clip's start, then ``hmax`` steps: set the step's control, step, record."""
+        wp, mjw, m, d = self.wp, self.mjw, self.host, self.d
         from amhe_cli.model import _warp_kernels as K
+        wp.launch(K.reset_worlds, dim=self._cap, inputs=[self.nclip, m.nq, m.nv, self.init_in],
+                  outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow])
         for t in range(hmax):
-            wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.ctrl_in], outputs=[self.d.ctrl])
-            mjw.step(self.m, self.d)
-            wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, self.d.qpos, self.d.qvel],
+            wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.nclip, self.ctrl_in], outputs=[d.ctrl])
+            mjw.step(self.m, d)
+            wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, d.qpos, d.qvel],
                       outputs=[self.qpos_out, self.qvel_out])
 
     def _launch(self, graph) -> None:
@@ -469,15 +508,28 @@ class WarpRollout:
             with self.wp.ScopedDevice(self.device):
                 self._steps(graph)
 
+    def _set_fields(self, fields: dict[str, np.ndarray], ncand: int) -> None:
+        """Per-candidate (B, ...) fields to every world (world w: candidate w // N_c; padding: candidate 0)."""
+        wp = self.wp
+        from amhe_cli.model import _warp_kernels as K
+        with wp.ScopedDevice(self.device):
+            for f, v in fields.items():
+                dst = self._flat[f]
+                src = wp.array(np.ascontiguousarray(v.reshape(ncand, -1), dtype=np.float32), dtype=float)
+                wp.launch(K.expand, dim=dst.shape, inputs=[ncand, self.nclip, src], outputs=[dst])
+
     # -- the backend interface -------------------------------------------------
     def rollout_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
                            horizon: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
         """Roll every candidate out over every clip (same contract as
-        :meth:`RolloutPool.rollout_candidates <amhe_cli.model.rollout.RolloutPool.rollout_candidates>`).
+        :meth:`RolloutPool.rollout_candidates <amhe_cli.model.rollout.RolloutPool.rollout_candidates>`;
+        states come back as float32).
 
         All clips run ``H_max`` steps in one graph launch (width is cheap on a
         GPU, depth is not); rows past a clip's horizon are then replaced by its
-        last state, as on the CPU.
+        last state, as on the CPU. The clips' recorded starts and controls are
+        uploaded once per clip set; a call uploads only the candidates'
+        per-world fields.
 
         Raises:
             AmheError: with buffer sizes given, a contact or constraint buffer
@@ -487,7 +539,6 @@ class WarpRollout:
                 worlds that overflow the scene's bound come back as NaN (the
                 cost module's "diverged") with a warning.
         """
-        wp = self.wp
         P = np.atleast_2d(P)
         if id(space) not in self._spaces_checked:
             check_space(space)
@@ -499,32 +550,17 @@ class WarpRollout:
                                                                                control, horizon))
         if nworld > self._cap:
             self._allocate(nworld)
+        self._buffers(n, hmax)
+        self._upload_clips(initial_state, control)
         graph = self._graph(hmax)
-        cap, m = self._cap, self.host
-        fields = candidate_fields(space, P, self.models(B), self._raise)
-        pad = np.zeros(cap, dtype=int)  # world -> candidate row; padding worlds repeat world 0
-        pad[:nworld] = np.repeat(np.arange(B), n)
-        for f, v in fields.items():
-            getattr(self.m, f).assign(np.ascontiguousarray(v[pad], dtype=np.float32))
-        clip = np.zeros(cap, dtype=int)
-        clip[:nworld] = np.tile(np.arange(n), B)
-        init = initial_state[clip]
-        d = self.d
-        d.time.assign(init[:, 0].astype(np.float32))
-        d.qpos.assign(np.ascontiguousarray(init[:, 1:1 + m.nq], dtype=np.float32))
-        d.qvel.assign(np.ascontiguousarray(init[:, 1 + m.nq:1 + m.nq + m.nv], dtype=np.float32))
-        if m.na:
-            d.act.assign(np.ascontiguousarray(init[:, 1 + m.nq + m.nv:1 + m.nq + m.nv + m.na], dtype=np.float32))
-        d.qacc_warmstart.zero_()
-        d.overflow.zero_()
-        ctrl = np.zeros((cap, self._hcap, m.nu), dtype=np.float32)
-        ctrl[:, :hmax] = control[clip]
-        ctrl[:, hmax:] = control[clip, -1:]
-        self.ctrl_in.assign(ctrl)
+        m = self.host
+        self._set_fields(candidate_fields(space, P, self.models(B), self._raise), B)
         self._launch(graph)
-        qpos = self.qpos_out.numpy()[:nworld, :hmax].astype(float).reshape(B, n, hmax, m.nq)
-        qvel = self.qvel_out.numpy()[:nworld, :hmax].astype(float).reshape(B, n, hmax, m.nv)
-        flags = d.overflow.numpy()[:nworld]
+        qpos = self.qpos_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nq)
+        qvel = self.qvel_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nv)
+        if not self.device.is_cuda:  # Warp's CPU arrays are views of its buffers: keep a copy
+            qpos, qvel = qpos.copy(), qvel.copy()
+        flags = self.d.overflow.numpy()[:nworld]
         bad = {name: int(np.count_nonzero(flags & bit)) for bit, name in OVERFLOW_BITS.items()}
         bad = {k: v for k, v in bad.items() if v}
         if bad:
@@ -535,9 +571,9 @@ class WarpRollout:
             if (self.nconmax, self.njmax) == tuple(self.bound):
                 # more than the scene's bound: only a rollout gone wild gets here; its states become NaN,
                 # which the cost module charges as diverged, and the user is told
-                lost = (flags & sum(OVERFLOW_BITS)) != 0
-                qpos.reshape(nworld, hmax, -1)[lost] = np.nan
-                qvel.reshape(nworld, hmax, -1)[lost] = np.nan
+                lost = ((flags & sum(OVERFLOW_BITS)) != 0).reshape(B, n)
+                qpos[lost] = np.nan
+                qvel[lost] = np.nan
                 print(f"amhe: warning: MuJoCo Warp buffers overflowed at the scene's bound ({what}): those "
                       "rollouts count as diverged", file=sys.stderr, flush=True)
                 bad = {}
