@@ -347,7 +347,7 @@ class WarpRollout:
 
     Offers the same ``rollout_candidates`` / ``close`` as
     :class:`~amhe_cli.model.rollout.RolloutPool`. Physics runs in float32 on
-    the device; results come back as float64.
+    the device; states come back as float32.
     """
 
     def __init__(self, model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None,
