@@ -2,7 +2,8 @@
 
 Everything above the ``gpu`` mark runs in CI without a GPU (field mapping,
 buffer sizing, refusals, device choice). Tests marked ``gpu`` need
-``amhe[gpu]`` and a CUDA device and are skipped otherwise.
+``amhe[gpu]`` and a CUDA device and are skipped otherwise (with ``amhe[gpu]`` and
+``AMHE_WARP_DEVICE=cpu`` they run the same kernels on Warp's CPU device, slowly).
 """
 
 from __future__ import annotations
@@ -235,7 +236,8 @@ gpu = pytest.mark.skipif(dev.choose_device("auto") != "cuda", reason="needs amhe
 @pytest.mark.gpu
 @gpu
 def test_gpu_cost_agrees_with_cpu(scene, clips):
-    """Same candidates, same clips: per-clip box position error within 1 mm, cost ranking mostly equal."""
+    """Same candidates, same clips: box position within 10 µm (median) and 100 µm (p95) of the CPU's over
+    every rolled-out step, and > 80 % of candidate pairs ordered alike by the two costs."""
     space = ParameterSpace(scene, ("box_mass", "box_friction"))
     rng = np.random.default_rng(1)
     P = space.project(space.vector(TRUTH) + rng.normal(0, 1, (16, 2)) * [1.5, 0.1])[0]
