@@ -55,6 +55,21 @@ def log_options(f):
     return f
 
 
+def _device_callback(ctx, param, value):
+    from amhe_cli.model.device import set_default
+    set_default(value)
+    return value
+
+
+#: ``--device``, once for every subcommand whose cost module rolls out candidates (identify, probe,
+#: mhe-replay): where the rollouts of the shared cost run (amhe_cli.model.device, docs/gpu.md).
+device_option = click.option(
+    "--device", default="auto", show_default=True, type=click.Choice(["auto", "cpu", "cuda"]),
+    callback=_device_callback, expose_value=False,
+    help="Where rollouts run: cpu (mujoco.rollout on --threads), cuda (MuJoCo Warp; needs amhe[gpu] and a "
+         "CUDA device), auto: cuda where both are present. The choice is printed once to stderr.")
+
+
 def identify_options(f):
     """Options of the CMA-ES identification, shared by ``identify`` and ``probe``."""
     opts = [
@@ -88,6 +103,7 @@ def identify_options(f):
         click.option("--seed", default=0, show_default=True, type=int, help="Seed for clips, CMA-ES and the sim."),
         click.option("--threads", default=None, type=click.IntRange(1, 1024),
                      help="Rollout threads (default: all CPUs)."),
+        device_option,
     ]
     for opt in reversed(opts):
         f = opt(f)

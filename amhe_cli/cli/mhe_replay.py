@@ -8,7 +8,7 @@ from csv import writer as csv_writer
 import click
 import numpy as np
 
-from amhe_cli.cli.common import (check_live, check_outputs, default_output, live_option, log_options,
+from amhe_cli.cli.common import (check_live, check_outputs, default_output, device_option, live_option, log_options,
                                  nominal_prior_text, parse_smooth, progress_bar, start_live)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.cost import StateWeights
@@ -55,6 +55,7 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="Seed of the estimator's candidate sampling (a sweep's k-th seed is SEED+k).")
 @click.option("--threads", default=None, type=click.IntRange(1, 1024),
               help="Rollout threads (default: all CPUs).")
+@device_option
 @click.option("--out", default=None, type=click.Path(), help="Estimates CSV (default: <log stem>.mhe.csv).")
 @click.option("--mcap", "mcap_out", default=None, type=click.Path(),
               help="Also write the estimates to this MCAP on /amhe/estimate (Float64MultiArray), with the "

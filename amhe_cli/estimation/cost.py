@@ -29,6 +29,7 @@ from amhe_cli.estimation.clips import ROLES, Clips
 from amhe_cli.errors import AmheError
 from amhe_cli.io.quat import quat_relative_rotvec
 from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.device import make_backend
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.model.scene import Scene
 
@@ -185,14 +186,22 @@ class RolloutCost:
             when an MHE window slides).
         weights: ``W_x`` (default :class:`StateWeights`).
         prior_weight: multiplies ``W_p`` (0 disables the prior term).
-        pool: a :class:`RolloutPool` to share; by default one is created.
-        nthread: threads for a pool created here.
+        pool: a rollout backend to share (a :class:`RolloutPool`, or a
+            :class:`~amhe_cli.model.rollout_warp.WarpRollout`); by default one
+            is created by :func:`~amhe_cli.model.device.make_backend`.
+        nthread: threads for a CPU pool created here.
+        device: ``cpu``, ``cuda`` or ``auto`` for a backend created here
+            (:func:`~amhe_cli.model.device.choose_device`); None: the
+            process's (``--device``, :func:`~amhe_cli.model.device.set_default`). The cost is the
+            same function on either: the candidates × clips are rolled out by
+            whichever backend, and everything after that is this module's.
 
     Deterministic: MuJoCo rollouts are, so the same ``P`` gives the same ``J``.
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, clips: Clips, weights: StateWeights | None = None,
-                 prior_weight: float = 1.0, pool: RolloutPool | None = None, nthread: int | None = None):
+                 prior_weight: float = 1.0, pool: RolloutPool | None = None, nthread: int | None = None,
+                 device: str | None = None):
         self.scene = scene
         self.space = space
         self.weights = weights or StateWeights()
@@ -200,7 +209,7 @@ class RolloutCost:
         self.prior_mean = space.mean0.copy()
         self.prior_std = space.std0.copy()
         self._own_pool = pool is None
-        self.pool = pool or RolloutPool(scene.model, nthread)
+        self.pool = pool or make_backend(scene.model, device, nthread)
         self._w, self._role = self.weights.vector(scene)
         self.rollout_steps = 0  # total simulated steps, for throughput figures
         self.set_clips(clips)
@@ -216,12 +225,11 @@ class RolloutCost:
             self.pool.close()
 
     def set_clips(self, clips: Clips, weights: StateWeights | None = None) -> None:
-        """Replace the clips (grouped by horizon so no step is simulated twice), and ``W_x`` if given."""
+        """Replace the clips, and ``W_x`` if given."""
         if weights is not None:
             self.weights = weights
             self._w, self._role = weights.vector(self.scene)
         self.clips = clips
-        self._groups = [np.flatnonzero(clips.horizon == h) for h in np.unique(clips.horizon)]
         # (N_c, H_max, 2nv) weights with unobserved roles zeroed
         self._wmask = self._w[None, None, :] * clips.observed[:, :, self._role]
 
@@ -252,27 +260,10 @@ class RolloutCost:
             qpos (B, N_c, H_max, nq) and qvel (B, N_c, H_max, nv); rows past a
             clip's horizon repeat its last rolled-out state.
         """
-        P = np.atleast_2d(P)
-        B, clips = P.shape[0], self.clips
-        models = self.pool.models(B)
-        for b in range(B):
-            self.space.write(models[b], P[b])
-        m = self.scene.model
-        hmax = clips.control.shape[1]
-        qpos = np.empty((B, len(clips), hmax, m.nq))
-        qvel = np.empty((B, len(clips), hmax, m.nv))
-        for idx in self._groups:
-            h = int(clips.horizon[idx[0]])
-            batch_models = [models[b] for b in range(B) for _ in idx]
-            init = np.tile(clips.initial_state[idx], (B, 1))
-            ctrl = np.tile(clips.control[idx, :h], (B, 1, 1))
-            state = self.pool.rollout(batch_models, init, ctrl, nstep=h)
-            self.rollout_steps += state.shape[0] * h
-            state = state.reshape(B, idx.size, h, -1)
-            qpos[:, idx, :h] = state[..., 1:1 + m.nq]
-            qvel[:, idx, :h] = state[..., 1 + m.nq:1 + m.nq + m.nv]
-            qpos[:, idx, h:] = qpos[:, idx, h - 1:h]
-            qvel[:, idx, h:] = qvel[:, idx, h - 1:h]
+        c = self.clips
+        qpos, qvel, steps = self.pool.rollout_candidates(self.space, np.atleast_2d(P), c.initial_state, c.control,
+                                                         c.horizon)
+        self.rollout_steps += steps
         return qpos, qvel
 
     def residuals(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

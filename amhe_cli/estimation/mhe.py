@@ -36,6 +36,7 @@ from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
 from amhe_cli.errors import AmheError
 from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.device import make_backend
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step
 from amhe_cli.model.scene import Scene
@@ -109,6 +110,10 @@ class MHESettings:
             is fused. Off by default (``amhe run``'s closed loop is measured
             without it); ``mhe-replay`` turns it on (:data:`REPLAY_SETTINGS`).
         seed: sampling seed.
+        device: rollout backend, ``cpu``, ``cuda`` or ``auto``
+            (:func:`~amhe_cli.model.device.choose_device`); None (default): the
+            process's (``--device``; ``cpu`` in library use). In ``run``/``evaluate``
+            configs: ``mhe: {device: cuda}``.
     """
 
     window: float = 1.0
@@ -124,6 +129,7 @@ class MHESettings:
     min_speed: float = 0.02
     fuse: bool = False
     seed: int = 0
+    device: str | None = None
 
     def check(self) -> None:
         """Raise :class:`AmheError` for settings that cannot work."""
@@ -133,6 +139,8 @@ class MHESettings:
             raise AmheError(f"--iters {self.iters} must be >= 1 and --samples {self.samples} >= 2")
         if not 0 < self.alpha <= 1:
             raise AmheError(f"--alpha {self.alpha}: expected a learning rate in (0, 1]")
+        if self.device is not None and self.device not in ("auto", "cpu", "cuda"):
+            raise AmheError(f"mhe device {self.device!r}: expected auto, cpu or cuda")
         if self.clip is not None and not 0 < self.clip <= self.window:
             raise AmheError(f"--clip {self.clip}: expected 0 < clip <= window ({self.window} s), or 0 for one piece")
 
@@ -205,7 +213,7 @@ class MovingHorizonEstimator:
         self.scene, self.space = scene, space
         self.weights = weights
         self._own_pool = pool is None
-        self.pool = pool or RolloutPool(scene.model, nthread)
+        self.pool = pool or make_backend(scene.model, self.settings.device, nthread)
         self._cost: RolloutCost | None = None
         self.rng = np.random.default_rng(self.settings.seed)
         self.mean = space.mean0.copy()

@@ -3,7 +3,8 @@
 Thin layer over ``mujoco.rollout.Rollout``: it keeps the thread pool, one
 ``MjData`` per thread and a set of ``MjModel`` copies alive between calls, so a
 batch of ``B`` parameter candidates costs ``B`` parameter writes and one call
-into MuJoCo's C++ thread pool (no GIL). Used by the cost module and the planner.
+into MuJoCo's C++ thread pool (no GIL). Used by the cost module (the ``cpu``
+rollout backend, :mod:`~amhe_cli.model.device`) and the planner.
 """
 
 from __future__ import annotations
@@ -59,6 +60,53 @@ class RolloutPool:
         while len(self._models) < n:
             self._models.append(copy.copy(self.template))
         return self._models[:n]
+
+    def describe(self) -> str:
+        """One line for the device announcement."""
+        return f"mujoco.rollout, {self.nthread} threads"
+
+    def rollout_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
+                           horizon: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Roll every candidate out over every clip: the rollout-backend interface of the cost module.
+
+        Clips of one horizon run as one batch, so no step is simulated twice.
+
+        Args:
+            space: the :class:`~amhe_cli.model.params.ParameterSpace` whose
+                ``write`` puts a candidate into a model.
+            P: (B, d) feasible candidates.
+            initial_state: (N_c, nstate) mjSTATE_FULLPHYSICS clip starts.
+            control: (N_c, H_max, nu) controls; row t drives step t.
+            horizon: (N_c,) steps per clip.
+        Returns:
+            qpos (B, N_c, H_max, nq), qvel (B, N_c, H_max, nv) — row t is the
+            state after step t, rows past a clip's horizon repeat its last
+            state — and the number of steps simulated.
+        """
+        P = np.atleast_2d(P)
+        B, n = P.shape[0], len(horizon)
+        models = self.models(B)
+        for b in range(B):
+            space.write(models[b], P[b])
+        m = self.template
+        hmax = control.shape[1]
+        qpos = np.empty((B, n, hmax, m.nq))
+        qvel = np.empty((B, n, hmax, m.nv))
+        steps = 0
+        for h in np.unique(horizon):
+            idx = np.flatnonzero(horizon == h)
+            h = int(h)
+            batch_models = [models[b] for b in range(B) for _ in idx]
+            init = np.tile(initial_state[idx], (B, 1))
+            ctrl = np.tile(control[idx, :h], (B, 1, 1))
+            state = self.rollout(batch_models, init, ctrl, nstep=h)
+            steps += state.shape[0] * h
+            state = state.reshape(B, idx.size, h, -1)
+            qpos[:, idx, :h] = state[..., 1:1 + m.nq]
+            qvel[:, idx, :h] = state[..., 1 + m.nq:1 + m.nq + m.nv]
+            qpos[:, idx, h:] = qpos[:, idx, h - 1:h]
+            qvel[:, idx, h:] = qvel[:, idx, h - 1:h]
+        return qpos, qvel, steps
 
     def rollout(self, models: list[mujoco.MjModel], initial_state: np.ndarray, control: np.ndarray,
                 nstep: int | None = None) -> np.ndarray:

@@ -1,0 +1,589 @@
+"""The ``cuda`` rollout backend: MuJoCo Warp, candidates × clips as the worlds of one batched model.
+
+The cost module (paper eq. 1 / eq. 4, :mod:`~amhe_cli.estimation.cost`) asks a
+backend to roll ``B`` candidates out over ``N_c`` clips. Here that is one
+MuJoCo Warp model with ``B · N_c`` worlds (world ``b · N_c + k`` = candidate
+``b`` on clip ``k``) stepped ``H_max`` times by one captured CUDA graph:
+
+* **Per-world fields.** Everything :meth:`ParameterSpace.write
+  <amhe_cli.model.params.ParameterSpace.write>` changes is a batched model
+  field (:data:`BATCHED_FIELDS`: body mass and inertia, the box–floor pair
+  friction, robot geom friction, servo gains), and so is every constant
+  ``mj_setConst`` derives from them (``body_invweight0``, ``dof_invweight0``,
+  ``body_subtreemass``, ``actuator_acc0``). Each candidate is written into a
+  host ``MjModel`` exactly as the CPU backend does (``mj_setConst``
+  included) and the batched fields are copied from it, so both backends see the
+  same derived constants; :func:`check_space` refuses a parameter space that
+  writes any other field.
+* **Buffers.** Contact and constraint buffers are sized from the scene: an
+  upper bound (:func:`buffer_sizes`: every geom pair that can touch, at the
+  most contacts its types make, and the rows each contact and each joint
+  limit, friction loss and equality adds) caps twice what the clips need at
+  the prior (:func:`measured_sizes`, :func:`choose_sizes`). MuJoCo Warp flags
+  an overflow per world; a flagged batch is repeated with larger buffers, and
+  at the bound (or with sizes given) it raises
+  :class:`~amhe_cli.errors.AmheError` — never a silent wrong answer.
+* **The box's zero friction.** The CPU scene gives the box geom friction 0 so
+  MuJoCo's max rule lets the robot geoms' coefficient (or the feet's, by
+  priority) set robot–box friction, while the box–floor friction is an explicit
+  ``<pair>``. MuJoCo Warp warns that a friction below ``MJ_MINMU`` "may cause
+  NaN"; :func:`friction_floor` raises it to ``MJ_MINMU`` only where the max
+  rule provably never uses it (every partner at least as large, or of higher
+  priority), so neither backend's answer changes (tested on the CPU).
+* **Refusals.** :func:`check_scene` refuses, with one line, a scene the
+  backend cannot simulate faithfully; what MuJoCo Warp's own ``put_model``
+  refuses is passed on as one line too.
+
+Kernels compile on first use (about 3 minutes for this scene) into Warp's
+kernel cache (``~/.cache/warp``, or ``$WARP_CACHE_PATH``); later processes load
+them in seconds. The first use says so on stderr, with the time it took.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import sys
+import time
+
+import mujoco
+import numpy as np
+
+from amhe_cli.errors import AmheError
+
+#: MuJoCo's smallest friction coefficient (mjMINMU).
+MJ_MINMU = 1e-5
+
+#: Model fields that are per world (batched) in the Warp model: those ParameterSpace.write
+#: sets and those mj_setConst derives from them.
+BATCHED_FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "body_invweight0", "dof_invweight0",
+                  "tendon_invweight0", "actuator_acc0", "geom_friction", "pair_friction",
+                  "actuator_gainprm", "actuator_biasprm")
+
+#: Fields mj_setConst may rewrite that a MuJoCo Warp step never reads (kept out of the per-world copy).
+HOST_ONLY_FIELDS = ("dof_M0", "body_gravcomp_invweight0")
+
+#: Overflow bits (mujoco_warp OverflowType) that mean lost contacts or constraints: NEFC, NJMAX_NNZ,
+#: BROADPHASE, NARROWPHASE, CCD. The solver's iteration limit (also flagged) is not an overflow: MuJoCo
+#: on the CPU stops there too.
+OVERFLOW_BITS = {1: "constraint rows (njmax)", 2: "constraint Jacobian non-zeros (njmax_nnz)",
+                 4: "broadphase contacts (nconmax)", 8: "narrowphase contacts (nconmax)", 16: "CCD contacts"}
+
+_G = mujoco.mjtGeom
+#: Most contacts one geom pair can make, by geom types (sorted); others: 4 (8 with a box or mesh).
+MAX_CONTACTS = {
+    (_G.mjGEOM_PLANE, _G.mjGEOM_SPHERE): 1, (_G.mjGEOM_PLANE, _G.mjGEOM_CAPSULE): 2,
+    (_G.mjGEOM_PLANE, _G.mjGEOM_ELLIPSOID): 1, (_G.mjGEOM_PLANE, _G.mjGEOM_CYLINDER): 4,
+    (_G.mjGEOM_PLANE, _G.mjGEOM_BOX): 4, (_G.mjGEOM_SPHERE, _G.mjGEOM_SPHERE): 1,
+    (_G.mjGEOM_SPHERE, _G.mjGEOM_CAPSULE): 1, (_G.mjGEOM_SPHERE, _G.mjGEOM_CYLINDER): 1,
+    (_G.mjGEOM_SPHERE, _G.mjGEOM_BOX): 1, (_G.mjGEOM_CAPSULE, _G.mjGEOM_CAPSULE): 2,
+    (_G.mjGEOM_CAPSULE, _G.mjGEOM_BOX): 2, (_G.mjGEOM_BOX, _G.mjGEOM_BOX): 8,
+}
+
+
+def _quiet(wp) -> None:
+    """Keep Warp's greeting and per-module load lines off stderr (amhe prints what matters)."""
+    if hasattr(wp, "LOG_WARNING"):  # warp-lang >= 1.19
+        wp.config.log_level = wp.LOG_WARNING
+    else:
+        wp.config.quiet = True
+
+
+def _array_fields(model: mujoco.MjModel) -> list[str]:
+    return [a for a in dir(model) if not a.startswith("_") and isinstance(getattr(model, a, None), np.ndarray)]
+
+
+def _max_contacts(t1: int, t2: int) -> int:
+    key = tuple(sorted((int(t1), int(t2))))
+    if key in MAX_CONTACTS:
+        return MAX_CONTACTS[key]
+    big = {int(_G.mjGEOM_BOX), int(_G.mjGEOM_MESH), int(_G.mjGEOM_HFIELD), int(_G.mjGEOM_SDF)}
+    return 8 if big & set(key) else 4
+
+
+def collision_pairs(model: mujoco.MjModel) -> tuple[list[tuple[int, int]], list[int]]:
+    """Geom pairs that can touch: dynamic pairs (contype/conaffinity, not welded together, not parent
+    and child unless the filter is off, not excluded, not shadowed by an explicit pair) and the
+    explicit ``<pair>`` ids.
+
+    Returns:
+        ([(g1, g2), ...] dynamic pairs with g1 < g2, [pair id, ...]).
+    """
+    m = model
+    explicit = {tuple(sorted((int(m.pair_geom1[i]), int(m.pair_geom2[i])))) for i in range(m.npair)}
+    excluded = {int(s) for s in m.exclude_signature}
+    filter_parent = not (m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_FILTERPARENT)
+    weld = m.body_weldid
+    pairs = []
+    for g1 in range(m.ngeom):
+        for g2 in range(g1 + 1, m.ngeom):
+            if not ((m.geom_contype[g1] & m.geom_conaffinity[g2]) or (m.geom_contype[g2] & m.geom_conaffinity[g1])):
+                continue
+            b1, b2 = int(m.geom_bodyid[g1]), int(m.geom_bodyid[g2])
+            w1, w2 = int(weld[b1]), int(weld[b2])
+            if w1 == w2:
+                continue
+            if filter_parent and w1 and w2 and (w1 == weld[m.body_parentid[w2]] or w2 == weld[m.body_parentid[w1]]):
+                continue
+            if ((min(b1, b2) << 16) + max(b1, b2)) in excluded or (g1, g2) in explicit:
+                continue
+            pairs.append((g1, g2))
+    return pairs, list(range(m.npair))
+
+
+def _rows(condim: int, elliptic: bool) -> int:
+    return condim if (elliptic or condim == 1) else 2 * (condim - 1)
+
+
+def buffer_sizes(model: mujoco.MjModel) -> tuple[int, int]:
+    """Contact and constraint buffer sizes per world, from the scene: ``(nconmax, njmax)``.
+
+    ``nconmax`` is the most contacts all pairs of :func:`collision_pairs` can make
+    at once (:data:`MAX_CONTACTS` by geom types); ``njmax`` the rows they add
+    (``condim`` per contact with elliptic cones, ``2 (condim − 1)`` pyramidal)
+    plus one per limited joint or tendon, one per DOF or tendon with friction
+    loss, and 3 / 6 / 1 per connect / weld / other equality. An upper bound, so
+    a world never overflows in a scene that stays as built; an overflow still
+    raises (:class:`WarpRollout`).
+    """
+    m = model
+    elliptic = m.opt.cone == mujoco.mjtCone.mjCONE_ELLIPTIC
+    pairs, explicit = collision_pairs(m)
+    ncon = nrow = 0
+    for g1, g2 in pairs:
+        n = _max_contacts(m.geom_type[g1], m.geom_type[g2])
+        ncon += n
+        nrow += n * _rows(int(max(m.geom_condim[g1], m.geom_condim[g2])), elliptic)
+    for p in explicit:
+        n = _max_contacts(m.geom_type[m.pair_geom1[p]], m.geom_type[m.pair_geom2[p]])
+        ncon += n
+        nrow += n * _rows(int(m.pair_dim[p]), elliptic)
+    nrow += int(np.count_nonzero(m.jnt_limited)) + int(np.count_nonzero(m.dof_frictionloss > 0))
+    nrow += int(np.count_nonzero(m.tendon_limited)) + int(np.count_nonzero(m.tendon_frictionloss > 0))
+    eq_rows = {int(mujoco.mjtEq.mjEQ_CONNECT): 3, int(mujoco.mjtEq.mjEQ_WELD): 6}
+    nrow += sum(eq_rows.get(int(t), 1) for t in m.eq_type)
+    return max(ncon, 1), max(nrow, 1)
+
+
+def measured_sizes(model: mujoco.MjModel, initial_state: np.ndarray, control: np.ndarray,
+                   horizon: np.ndarray) -> tuple[int, int]:
+    """Most contacts and constraint rows one world needs along the clips, at the model's own parameters.
+
+    Steps each clip on the CPU (``mj_step``) from its recorded start with its
+    recorded controls.
+
+    Args:
+        initial_state: (N_c, nstate) mjSTATE_FULLPHYSICS; control: (N_c, H_max, nu); horizon: (N_c,).
+    Returns:
+        (most ``ncon``, most ``nefc``) over every step of every clip.
+    """
+    d = mujoco.MjData(model)
+    ncon = nefc = 0
+    for k in range(len(horizon)):
+        mujoco.mj_setState(model, d, initial_state[k], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        for t in range(int(horizon[k])):
+            d.ctrl[:] = control[k, t]
+            mujoco.mj_step(model, d)
+            ncon, nefc = max(ncon, d.ncon), max(nefc, d.nefc)
+    return ncon, nefc
+
+
+def choose_sizes(bound: tuple[int, int], measured: tuple[int, int]) -> tuple[int, int]:
+    """Buffer sizes ``(nconmax, njmax)``: twice what the clips need at the prior (at least 16 more),
+    rounded up to 16, never above the scene's :func:`buffer_sizes` bound.
+
+    Why not the bound itself: MuJoCo Warp launches many solver kernels over
+    ``nworld × njmax`` threads, so a bound 10× the need (876 rows against ~60
+    for the Go1 and box) costs time every step. Candidates far from the prior
+    may need more: an overflow then grows the buffers toward the bound and the
+    call is repeated (:class:`WarpRollout`), never answered from a truncated step.
+    """
+    def size(b, m):
+        return int(min(b, 16 * np.ceil(max(2 * m, m + 16) / 16)))
+    return size(bound[0], measured[0]), size(bound[1], measured[1])
+
+
+def friction_floor(model: mujoco.MjModel) -> tuple[list[int], str | None]:
+    """Geoms whose friction below ``MJ_MINMU`` can be raised to it without changing any contact.
+
+    Under MuJoCo's rule a dynamic contact takes the higher-priority geom's
+    friction, or with equal priorities the element-wise max; explicit pairs
+    carry their own. So raising geom ``g``'s components to ``MJ_MINMU`` changes
+    nothing when every partner that can touch it has higher priority, or the
+    same priority and every component ≥ ``MJ_MINMU``.
+
+    Returns:
+        (geom ids to raise, None), or ([], a one-line reason) when a partner
+        would take the raised value (then the backend refuses the scene).
+    """
+    m = model
+    low = [g for g in range(m.ngeom) if np.any(m.geom_friction[g] < MJ_MINMU)]
+    if not low:
+        return [], None
+    pairs, _ = collision_pairs(m)
+    for g in low:
+        for g1, g2 in pairs:
+            if g not in (g1, g2):
+                continue
+            other = g2 if g == g1 else g1
+            if m.geom_priority[other] > m.geom_priority[g]:
+                continue
+            if m.geom_priority[other] < m.geom_priority[g] or np.any(m.geom_friction[other] < MJ_MINMU):
+                name = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, g) or f"#{g}"
+                oname = mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_GEOM, other) or f"#{other}"
+                return [], (f"geom {name}'s friction {m.geom_friction[g].tolist()} is below MuJoCo Warp's "
+                            f"minimum {MJ_MINMU} and decides its contacts with {oname}")
+    return low, None
+
+
+def check_scene(model: mujoco.MjModel) -> None:
+    """Refuse a scene the Warp backend cannot simulate faithfully.
+
+    Raises:
+        AmheError: one line naming what (noslip, flexes, plugins, an
+            integrator MuJoCo Warp lacks, a zero friction the max rule uses).
+    """
+    m = model
+    why = []
+    if m.opt.noslip_iterations > 0:
+        why.append(f"noslip iterations ({m.opt.noslip_iterations})")
+    if m.nflex:
+        why.append(f"{m.nflex} flexes")
+    if m.nplugin:
+        why.append(f"{m.nplugin} plugins")
+    if m.na:
+        why.append(f"actuator activations (na={m.na}: clip starts carry qpos and qvel only)")
+    if m.opt.integrator not in (mujoco.mjtIntegrator.mjINT_EULER, mujoco.mjtIntegrator.mjINT_RK4,
+                                mujoco.mjtIntegrator.mjINT_IMPLICITFAST, mujoco.mjtIntegrator.mjINT_IMPLICIT):
+        why.append(f"integrator {mujoco.mjtIntegrator(m.opt.integrator).name}")
+    _, reason = friction_floor(m)
+    if reason:
+        why.append(reason)
+    if why:
+        raise AmheError("--device cuda cannot simulate this scene faithfully: " + "; ".join(why)
+                        + " (use --device cpu)")
+
+
+def warp_host_model(model: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of ``model`` with :func:`friction_floor`'s geoms raised to ``MJ_MINMU`` (what Warp is given)."""
+    check_scene(model)
+    low, _ = friction_floor(model)
+    out = copy.copy(model)
+    out.geom_friction[low] = np.maximum(out.geom_friction[low], MJ_MINMU)
+    return out
+
+
+def written_fields(space) -> set[str]:
+    """Array fields of ``MjModel`` that ``space.write`` (with ``mj_setConst``) changes.
+
+    Writes a candidate at 3/4 of the way to every upper bound into a copy of the
+    scene's model and compares every array field with the template.
+    """
+    template = space.scene.model
+    m = copy.copy(template)
+    vec = space.mean0 + 0.75 * (space.upper - space.mean0)
+    space.write(m, space.project(vec[None])[0][0])
+    return {f for f in _array_fields(template)
+            if getattr(template, f).shape == getattr(m, f).shape and not np.array_equal(getattr(template, f), getattr(m, f))}
+
+
+def check_space(space) -> None:
+    """Refuse a parameter space that writes a model field the Warp backend does not batch per world.
+
+    Raises:
+        AmheError: the field names.
+    """
+    extra = written_fields(space) - set(BATCHED_FIELDS) - set(HOST_ONLY_FIELDS)
+    if extra:
+        raise AmheError(f"--device cuda: parameters {', '.join(space.free)} write {', '.join(sorted(extra))}, "
+                        "which the Warp backend does not set per world (use --device cpu)")
+
+
+def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel],
+                     raise_friction: list[int] | None = None) -> dict[str, np.ndarray]:
+    """Per-candidate values of :data:`BATCHED_FIELDS`, computed as the CPU backend computes them.
+
+    Args:
+        space: the parameter space (its ``write`` calls ``mj_setConst``).
+        P: (B, d) feasible candidates.
+        models: at least B scratch copies of the scene's model (overwritten).
+        raise_friction: geoms whose friction is raised to ``MJ_MINMU`` (:func:`friction_floor`).
+    Returns:
+        field -> (B, *field shape) float64 array; empty fields (e.g. no tendons) left out.
+    """
+    P = np.atleast_2d(P)
+    out = {f: [] for f in BATCHED_FIELDS if getattr(space.scene.model, f).size}
+    for b in range(len(P)):
+        space.write(models[b], P[b])
+        for f in out:
+            out[f].append(np.array(getattr(models[b], f), dtype=float))
+    res = {f: np.stack(v) for f, v in out.items()}
+    if raise_friction:
+        res["geom_friction"][:, raise_friction] = np.maximum(res["geom_friction"][:, raise_friction], MJ_MINMU)
+    return res
+
+
+def world_capacity(nworld: int) -> int:
+    """Worlds to allocate for ``nworld``: the next power of two (at least 64), so a batch that shrinks or
+    grows a little reuses the captured graphs."""
+    return max(64, 1 << int(np.ceil(np.log2(max(nworld, 1)))))
+
+
+class WarpRollout:
+    """Batched rollouts on a CUDA device through MuJoCo Warp (the ``cuda`` rollout backend).
+
+    Args:
+        model: the scene's template ``MjModel`` (never modified).
+        nconmax, njmax: per-world contact and constraint buffer sizes
+            (default: :func:`choose_sizes` from the first call's clips, grown on
+            overflow up to :func:`buffer_sizes`; given: fixed, and an overflow raises).
+        device: Warp device (default :func:`~amhe_cli.model.device.warp_device`:
+            ``cuda:0``); ``"cpu"`` (Warp's LLVM back end, no CUDA graph, slow)
+            exists to debug the backend on a machine without a GPU.
+
+    Raises:
+        AmheError: ``amhe[gpu]`` not installed, no CUDA device, or a scene the
+            backend refuses (:func:`check_scene`, or MuJoCo Warp's own checks).
+
+    Offers the same ``rollout_candidates`` / ``close`` as
+    :class:`~amhe_cli.model.rollout.RolloutPool`. Physics runs in float32 on
+    the device; states come back as float32.
+    """
+
+    def __init__(self, model: mujoco.MjModel, nconmax: int | None = None, njmax: int | None = None,
+                 device: str | None = None):
+        try:
+            import warp as wp
+            _quiet(wp)  # before mujoco_warp's import initialises Warp: amhe says what matters
+            import mujoco_warp as mjw
+        except ImportError as e:
+            raise AmheError(f"--device cuda: {e.name} not installed (pip install 'amhe[gpu]')") from None
+        wp.init()
+        from amhe_cli.model.device import warp_device
+        device = device or warp_device()
+        if device.startswith("cuda") and wp.get_cuda_device_count() < 1:
+            raise AmheError("--device cuda: no CUDA device found")
+        self.wp, self.mjw = wp, mjw
+        self.template = model
+        self.host = warp_host_model(model)
+        self._raise, _ = friction_floor(model)
+        self.bound = buffer_sizes(model)
+        self._fixed = nconmax is not None or njmax is not None  # sizes given: an overflow raises
+        # 0: chosen from the first call's clips (choose_sizes); one of them given: the other at the bound
+        self.nconmax = int(nconmax or (self.bound[0] if self._fixed else 0))
+        self.njmax = int(njmax or (self.bound[1] if self._fixed else 0))
+        self.device = wp.get_device(device)
+        self._models: list[mujoco.MjModel] = []
+        self._spaces_checked: set[int] = set()
+        self._cap = 0
+        self._graphs: dict[int, object] = {}
+        self.compile_time: float | None = None
+        self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+
+    def describe(self) -> str:
+        """One line for the device announcement."""
+        return f"MuJoCo Warp {getattr(self.mjw, '__version__', '?')} on {self.device.name}"
+
+    def __enter__(self) -> "WarpRollout":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Drop the device buffers and graphs."""
+        self._graphs.clear()
+        self._cap = 0
+        self.m = self.d = None
+
+    def models(self, n: int) -> list[mujoco.MjModel]:
+        """``n`` host model copies to write candidates into (created once, reused)."""
+        while len(self._models) < n:
+            self._models.append(copy.copy(self.template))
+        return self._models[:n]
+
+    # -- device set-up ---------------------------------------------------------
+    def _allocate(self, nworld: int) -> None:
+        """Model, data and per-world field views for ``world_capacity(nworld)`` worlds (drops graphs and buffers)."""
+        wp, mjw = self.wp, self.mjw
+        cap = world_capacity(nworld)
+        batch = {f: cap for f in BATCHED_FIELDS if getattr(self.host, f).size}
+        try:
+            with wp.ScopedDevice(self.device):
+                self.m = mjw.put_model(self.host, batch_sizes=batch)
+                self.m.opt.warn_overflow = 0  # overflows are read from d.overflow and handled, not printed
+                self.d = mjw.put_data(self.host, mujoco.MjData(self.host), nworld=cap, nconmax=self.nconmax,
+                                      njmax=self.njmax)
+                # each batched field seen as (cap, k) floats, for the candidate -> world expansion
+                self._flat = {}
+                for f in batch:
+                    arr = getattr(self.m, f)
+                    if not arr.is_contiguous or arr.shape[0] != cap:
+                        raise NotImplementedError(f"model field {f} is not a contiguous per-world array")
+                    k = arr.size * wp.types.type_size_in_bytes(arr.dtype) // 4 // cap
+                    self._flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
+                self.nclip = wp.zeros(1, dtype=int)
+        except (NotImplementedError, ValueError) as e:
+            raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
+                            "(use --device cpu)") from None
+        self._cap = cap
+        self._graphs.clear()
+        self._hcap = self._ncap = 0
+        self._clipkey = None
+
+    def _buffers(self, nclip: int, hmax: int) -> None:
+        """Clip inputs (N_c, ...) and state outputs (worlds, H, ...) at least this large (drops graphs if grown)."""
+        if hmax <= self._hcap and nclip <= self._ncap:
+            return
+        wp, m = self.wp, self.host
+        self._hcap, self._ncap = max(hmax, self._hcap), max(nclip, self._ncap)
+        with wp.ScopedDevice(self.device):
+            self.init_in = wp.zeros((self._ncap, 1 + m.nq + m.nv), dtype=float)
+            self.ctrl_in = wp.zeros((self._ncap, self._hcap, m.nu), dtype=float)
+            self.qpos_out = wp.zeros((self._cap, self._hcap, m.nq), dtype=float)
+            self.qvel_out = wp.zeros((self._cap, self._hcap, m.nv), dtype=float)
+        self._graphs.clear()
+        self._clipkey = None
+
+    def _upload_clips(self, initial_state: np.ndarray, control: np.ndarray) -> None:
+        """Recorded starts and controls to the device, once per clip set (a changed set is uploaded anew)."""
+        key = (initial_state.shape, control.shape,
+               hashlib.blake2b(np.ascontiguousarray(initial_state).tobytes()
+                               + np.ascontiguousarray(control).tobytes(), digest_size=16).digest())
+        if key == self._clipkey:
+            return
+        m, n, hmax = self.host, len(initial_state), control.shape[1]
+        init = np.zeros((self._ncap, 1 + m.nq + m.nv), dtype=np.float32)
+        init[:n] = initial_state[:, :1 + m.nq + m.nv]
+        ctrl = np.zeros((self._ncap, self._hcap, m.nu), dtype=np.float32)
+        ctrl[:n, :hmax] = control
+        ctrl[:n, hmax:] = control[:, -1:]
+        self.init_in.assign(init)
+        self.ctrl_in.assign(ctrl)
+        self.nclip.assign(np.array([n], dtype=np.int32))
+        self._clipkey = key
+
+    def _graph(self, hmax: int):
+        """The step loop of ``hmax`` steps, captured as a CUDA graph on first need."""
+        wp, mjw = self.wp, self.mjw
+        if hmax not in self._graphs:
+            first = self.compile_time is None
+            if first:
+                print("amhe: compiling MuJoCo Warp kernels, or loading them from Warp's kernel cache "
+                      "(~/.cache/warp, or $WARP_CACHE_PATH): minutes the first time, seconds after…",
+                      file=sys.stderr, flush=True)
+            t0 = time.perf_counter()
+            with wp.ScopedDevice(self.device):
+                if first:  # load every module outside the capture
+                    self._steps(1)
+                    wp.synchronize()
+                if self.device.is_cuda:
+                    with wp.ScopedCapture() as cap:
+                        self._steps(hmax)
+                    graph = cap.graph
+                else:
+                    graph = hmax  # no graphs off CUDA: _launch steps eagerly
+            if first:
+                self.compile_time = time.perf_counter() - t0
+                print(f"amhe: MuJoCo Warp kernels ready in {self.compile_time:.1f} s", file=sys.stderr, flush=True)
+            self._graphs[hmax] = graph
+        return self._graphs[hmax]
+
+    def _steps(self, hmax: int) -> None:
+        """Reset every world to its clip's start, then ``hmax`` steps: set the step's control, step, record."""
+        wp, mjw, m, d = self.wp, self.mjw, self.host, self.d
+        from amhe_cli.model import _warp_kernels as K
+        wp.launch(K.reset_worlds, dim=self._cap, inputs=[self.nclip, m.nq, m.nv, self.init_in],
+                  outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow])
+        for t in range(hmax):
+            wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.nclip, self.ctrl_in], outputs=[d.ctrl])
+            mjw.step(self.m, d)
+            wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, d.qpos, d.qvel],
+                      outputs=[self.qpos_out, self.qvel_out])
+
+    def _launch(self, graph) -> None:
+        if self.device.is_cuda:
+            self.wp.capture_launch(graph)
+        else:
+            with self.wp.ScopedDevice(self.device):
+                self._steps(graph)
+
+    def _set_fields(self, fields: dict[str, np.ndarray], ncand: int) -> None:
+        """Per-candidate (B, ...) fields to every world (world w: candidate w // N_c; padding: candidate 0)."""
+        wp = self.wp
+        from amhe_cli.model import _warp_kernels as K
+        with wp.ScopedDevice(self.device):
+            for f, v in fields.items():
+                dst = self._flat[f]
+                src = wp.array(np.ascontiguousarray(v.reshape(ncand, -1), dtype=np.float32), dtype=float)
+                wp.launch(K.expand, dim=dst.shape, inputs=[ncand, self.nclip, src], outputs=[dst])
+
+    # -- the backend interface -------------------------------------------------
+    def rollout_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
+                           horizon: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Roll every candidate out over every clip (same contract as
+        :meth:`RolloutPool.rollout_candidates <amhe_cli.model.rollout.RolloutPool.rollout_candidates>`;
+        states come back as float32).
+
+        All clips run ``H_max`` steps in one graph launch (width is cheap on a
+        GPU, depth is not); rows past a clip's horizon are then replaced by its
+        last state, as on the CPU. The clips' recorded starts and controls are
+        uploaded once per clip set; a call uploads only the candidates'
+        per-world fields.
+
+        Raises:
+            AmheError: with buffer sizes given, a contact or constraint buffer
+                overflowed in some world (the count and which buffer); or
+                ``space`` writes a field this backend does not batch
+                (:func:`check_space`). Chosen sizes grow on overflow instead, and
+                worlds that overflow the scene's bound come back as NaN (the
+                cost module's "diverged") with a warning.
+        """
+        P = np.atleast_2d(P)
+        if id(space) not in self._spaces_checked:
+            check_space(space)
+            self._spaces_checked.add(id(space))
+        B, n = P.shape[0], len(horizon)
+        nworld, hmax = B * n, int(control.shape[1])
+        if not self.njmax:
+            self.nconmax, self.njmax = choose_sizes(self.bound, measured_sizes(self.template, initial_state,
+                                                                               control, horizon))
+        if nworld > self._cap:
+            self._allocate(nworld)
+        self._buffers(n, hmax)
+        self._upload_clips(initial_state, control)
+        graph = self._graph(hmax)
+        m = self.host
+        self._set_fields(candidate_fields(space, P, self.models(B), self._raise), B)
+        self._launch(graph)
+        qpos = self.qpos_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nq)
+        qvel = self.qvel_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nv)
+        if not self.device.is_cuda:  # Warp's CPU arrays are views of its buffers: keep a copy
+            qpos, qvel = qpos.copy(), qvel.copy()
+        flags = self.d.overflow.numpy()[:nworld]
+        bad = {name: int(np.count_nonzero(flags & bit)) for bit, name in OVERFLOW_BITS.items()}
+        bad = {k: v for k, v in bad.items() if v}
+        if bad:
+            what = ", ".join(f"{k} in {v} of {nworld} worlds" for k, v in bad.items())
+            if self._fixed:
+                raise AmheError(f"--device cuda: MuJoCo Warp ran out of buffer space: {what} "
+                                f"(nconmax {self.nconmax}, njmax {self.njmax}); use --device cpu")
+            if (self.nconmax, self.njmax) == tuple(self.bound):
+                # more than the scene's bound: only a rollout gone wild gets here; its states become NaN,
+                # which the cost module charges as diverged, and the user is told
+                lost = ((flags & sum(OVERFLOW_BITS)) != 0).reshape(B, n)
+                qpos[lost] = np.nan
+                qvel[lost] = np.nan
+                print(f"amhe: warning: MuJoCo Warp buffers overflowed at the scene's bound ({what}): those "
+                      "rollouts count as diverged", file=sys.stderr, flush=True)
+                bad = {}
+        if bad:
+            self.nconmax, self.njmax = (min(self.bound[0], 2 * self.nconmax), min(self.bound[1], 2 * self.njmax))
+            print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
+                  f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
+            self._allocate(nworld)
+            return self.rollout_candidates(space, P, initial_state, control, horizon)
+        for k, h in enumerate(np.asarray(horizon, dtype=int)):
+            qpos[:, k, h:] = qpos[:, k, h - 1:h]
+            qvel[:, k, h:] = qvel[:, k, h - 1:h]
+        return qpos, qvel, nworld * hmax

@@ -1,0 +1,187 @@
+"""MuJoCo Warp (``--device cuda``) against ``mujoco.rollout`` on all CPU cores, on one machine in one run.
+
+Measures, each written as one flushed line to stdout and to ``$OUT/gpu_throughput.txt``
+(or ``--out``) as soon as it is known:
+
+1. **compile**: the Warp backend's first call (kernel compile or cache load, graph capture).
+2. **agreement**: the same candidates on the same clips through both backends
+   (:class:`~amhe_cli.model.rollout.RolloutPool` and
+   :class:`~amhe_cli.model.rollout_warp.WarpRollout`): the box's planar
+   position difference at each clip's end (median, 95th percentile, max
+   [mm]), the whole state's at the end (max over components), and the share of
+   candidate pairs of a CMA-ES-like generation that the two costs order alike —
+   for a first generation (σ 0.3 prior-σ about the prior) and a late one (σ 0.03 about the truth).
+3. **throughput**: useful simulated steps per second (candidates × Σ clip
+   horizons / wall time of ``rollout_candidates``, parameter writes and
+   transfers included) for several batch sizes (worlds = candidates × clips), and
+   the GPU graph alone (launch to sync).
+4. **identify**: ``identify`` on the log on cpu, on cuda with the CPU's
+   settings, and on cuda with wider settings (``--wide POP,CLIPS``): wall
+   time and the error against the log's truth.
+
+The last lines are the ratios ``ratio_steps_best=`` (best Warp useful steps/s over best CPU
+useful steps/s) and ``ratio_identify=`` (CPU identify wall / GPU identify wall).
+
+Usage::
+
+    python benchmarks/gpu_throughput.py LOG [--clips 48] [--batches 256,1024,4096,16384] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from amhe_cli.estimation.clips import sample_clips  # noqa: E402
+from amhe_cli.estimation.cost import RolloutCost  # noqa: E402
+from amhe_cli.estimation.identify import CLEAN_LOG_CLIPS, IdentifySettings, identify  # noqa: E402
+from amhe_cli.estimation.problem import load_problem  # noqa: E402
+from identify_accuracy import truth_of  # noqa: E402  (benchmarks/: <LOG stem>.truth.yaml or metadata)
+from amhe_cli.model import device as dev  # noqa: E402
+from amhe_cli.model.rollout import RolloutPool, default_threads  # noqa: E402
+from amhe_cli.model.rollout_warp import WarpRollout  # noqa: E402
+
+_sink = None
+
+
+def emit(line: str) -> None:
+    """One measurement: stdout and the results file, flushed."""
+    print(line, flush=True)
+    if _sink is not None:
+        _sink.write(line + "\n")
+        _sink.flush()
+
+
+def pair_agreement(a: np.ndarray, b: np.ndarray) -> float:
+    """Share of pairs (i < j) that ``a`` and ``b`` order alike (ties count as alike only if tied in both)."""
+    i, j = np.triu_indices(len(a), 1)
+    return float(np.mean(np.sign(a[i] - a[j]) == np.sign(b[i] - b[j])))
+
+
+def main(argv=None) -> None:
+    global _sink
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("log")
+    ap.add_argument("--clips", type=int, default=CLEAN_LOG_CLIPS[0])
+    ap.add_argument("--batches", default="256,1024,4096,16384", help="worlds (candidates x clips) per call")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--wide", default="48,96", help="identify on cuda with this POPSIZE,CLIPS too")
+    ap.add_argument("--skip", default="", help="comma-separated sections to skip: agreement,throughput,identify")
+    ap.add_argument("--out", default=os.environ.get("OUT", "."), help="folder of gpu_throughput.txt")
+    ap.add_argument("--warp-device", default=None, help="Warp device (default cuda:0, or $AMHE_WARP_DEVICE; "
+                    "cpu: debug the script without a GPU)")
+    a = ap.parse_args(argv)
+    Path(a.out).mkdir(parents=True, exist_ok=True)
+    _sink = open(Path(a.out) / "gpu_throughput.txt", "a")
+    skip = set(filter(None, a.skip.split(",")))
+
+    t0 = time.perf_counter()
+    problem = load_problem(a.log)
+    scene, space, traj = problem.scene, problem.space, problem.traj
+    truth = truth_of(a.log, None)
+    clips = sample_clips(traj, scene, a.clips, CLEAN_LOG_CLIPS[1], rng=np.random.default_rng(0))
+    nthread = default_threads()
+    emit(f"setup log={Path(a.log).name} clips={len(clips)} steps_per_candidate={clips.steps} "
+         f"hmax={clips.control.shape[1]} cpu_threads={nthread} load_s={time.perf_counter() - t0:.1f}")
+    p0 = space.mean0
+    tvec = space.vector({k: v for k, v in truth.items() if k in space.free}) if truth else p0
+    rng = np.random.default_rng(1)
+
+    warp = WarpRollout(scene.model, device=a.warp_device)
+    pool = RolloutPool(scene.model, nthread)
+    emit(f"device {warp.describe()}")
+    c = clips
+    t = time.perf_counter()
+    warp.rollout_candidates(space, p0[None], c.initial_state, c.control, c.horizon)
+    emit(f"compile_s={time.perf_counter() - t:.1f} (first call: kernels {warp.compile_time:.1f} s, then graph) "
+         f"nconmax={warp.nconmax} njmax={warp.njmax} bound={warp.bound}")
+
+    if "agreement" not in skip:
+        h = c.horizon - 1
+        box = scene.box_qpos[:2]
+        for label, centre, sd in (("first_gen", p0, 0.3), ("late_gen", tvec, 0.03)):
+            P = space.project(centre + rng.normal(0, sd, (12, space.dim)) * space.std0)[0]
+            qc, vc, _ = pool.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)
+            qg, vg, _ = warp.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)
+            k = np.arange(len(c))
+            end_c, end_g = qc[:, k, h], qg[:, k, h]  # (B, N_c, nq) at each clip's end
+            dbox = np.linalg.norm(end_c[..., box] - end_g[..., box], axis=-1) * 1e3
+            dstate = np.abs(end_c - end_g).max()
+            with RolloutCost(scene, space, c, pool=pool, prior_weight=0.0) as cc, \
+                    RolloutCost(scene, space, c, pool=warp, prior_weight=0.0) as cg:
+                jc, jg = cc(P), cg(P)
+            rel = np.abs(jg - jc) / np.maximum(np.abs(jc), 1e-12)
+            emit(f"agreement {label}: box_end_mm median={np.median(dbox):.4f} p95={np.percentile(dbox, 95):.4f} "
+                 f"max={dbox.max():.4f} state_end_max={dstate:.2e} J_rel_median={np.median(rel):.3g} "
+                 f"J_rel_max={rel.max():.3g} ranking_pairs_same={pair_agreement(jc, jg):.3f}")
+
+    best_g = best_c = 0.0
+    if "throughput" not in skip:
+        for worlds in (int(x) for x in a.batches.split(",")):
+            B = max(1, worlds // len(c))
+            P = space.project(p0 + rng.normal(0, 0.3, (B, space.dim)) * space.std0)[0]
+            useful = B * clips.steps
+            warp.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)  # capture at this size
+            tg = []
+            for _ in range(a.repeats):
+                t = time.perf_counter()
+                warp.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)
+                tg.append(time.perf_counter() - t)
+            graph = warp._graph(int(c.control.shape[1]))
+            tl = []
+            for _ in range(a.repeats):
+                t = time.perf_counter()
+                warp._launch(graph)
+                warp.wp.synchronize()
+                tl.append(time.perf_counter() - t)
+            tc = []
+            for _ in range(max(1, a.repeats if worlds <= 4096 else 1)):
+                t = time.perf_counter()
+                pool.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)
+                tc.append(time.perf_counter() - t)
+            g, l, cp = statistics.median(tg), statistics.median(tl), statistics.median(tc)
+            best_g, best_c = max(best_g, useful / g), max(best_c, useful / cp)
+            emit(f"throughput worlds={B * len(c)} candidates={B} warp_steps_per_s={useful / g:.0f} "
+                 f"warp_graph_only_steps_per_s={B * len(c) * c.control.shape[1] / l:.0f} "
+                 f"cpu_steps_per_s={useful / cp:.0f} ratio={cp / g:.2f} warp_call_s={g:.3f} cpu_call_s={cp:.3f}")
+    pool.close()
+    warp.close()
+
+    ratio_identify = None
+    if "identify" not in skip:
+        walls = {}
+        pop, ncl = (int(x) for x in a.wide.split(","))
+        for label, device, settings in (("cpu", "cpu", IdentifySettings()), ("cuda", "cuda", IdentifySettings()),
+                                        (f"cuda_pop{pop}_clips{ncl}", "cuda",
+                                         IdentifySettings(popsize=pop, n_clips=ncl))):
+            dev.set_default(device)
+            t = time.perf_counter()
+            res = identify(traj, scene, space, settings)
+            wall = time.perf_counter() - t
+            walls[label] = wall
+            est = space.values(res.estimate)
+            errs = []
+            if "box_mass" in truth:
+                errs.append(f"mass_err_pct={100 * (est['box_mass'] - truth['box_mass']) / truth['box_mass']:+.2f}")
+            if "box_friction" in truth:
+                errs.append(f"mu_err={est['box_friction'] - truth['box_friction']:+.4f}")
+            emit(f"identify {label}: wall_s={wall:.2f} evaluations={res.evaluations} generations={len(res.history)} "
+                 + " ".join(errs))
+        ratio_identify = walls["cpu"] / walls["cuda"]
+    if best_c:
+        emit(f"ratio_steps_best={best_g / best_c:.2f}")
+    if ratio_identify is not None:
+        emit(f"ratio_identify={ratio_identify:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,278 @@
+"""The rollout backends behind the cost module: device choice, and the Warp backend's CPU-side code.
+
+Everything above the ``gpu`` mark runs in CI without a GPU (field mapping,
+buffer sizing, refusals, device choice). Tests marked ``gpu`` need
+``amhe[gpu]`` and a CUDA device and are skipped otherwise (with ``amhe[gpu]`` and
+``AMHE_WARP_DEVICE=cpu`` they run the same kernels on Warp's CPU device, slowly).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import mujoco
+import numpy as np
+import pytest
+from helpers import amhe, one_line_error
+
+from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.clips import sample_clips
+from amhe_cli.estimation.cost import RolloutCost
+from amhe_cli.model import device as dev
+from amhe_cli.model import rollout_warp as rw
+from amhe_cli.model.params import PARAMETERS, ParameterSpace
+from amhe_cli.model.rollout import RolloutPool
+from amhe_cli.model.scene import Scene, SceneConfig
+from amhe_cli.plants.sim import SimPlant
+
+TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
+BOX_XY = (0.48, 0.0)
+
+
+@pytest.fixture(scope="module")
+def traj():
+    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+    q, _ = plant.scene.standing_state(box_xy=BOX_XY)
+    plant.reset(q)
+    for u in lunge_schedule():
+        plant.step(u)
+    return plant.trajectory()
+
+
+@pytest.fixture(scope="module")
+def scene():
+    return Scene(SceneConfig())
+
+
+@pytest.fixture(scope="module")
+def clips(traj, scene):
+    return sample_clips(traj, scene, 8, rng=np.random.default_rng(0))
+
+
+# -- device choice -------------------------------------------------------------------------------
+
+def test_choose_device_falls_back_and_refuses_with_the_reason():
+    assert dev.choose_device("cpu", packages="x", device_name=None) == "cpu"
+    assert dev.choose_device("auto", packages="warp not installed", device_name=None) == "cpu"
+    assert dev.choose_device(None, packages=None, device_name=None) == "cpu"  # packages, no device
+    assert dev.choose_device("auto", packages=None, device_name="NVIDIA H100") == "cuda"
+    assert dev.choose_device("cuda", packages=None, device_name="NVIDIA H100") == "cuda"
+    with pytest.raises(AmheError, match="not installed"):
+        dev.choose_device("cuda", packages="mujoco_warp not installed (pip install 'amhe[gpu]')", device_name=None)
+    with pytest.raises(AmheError, match="no CUDA device"):
+        dev.choose_device("cuda", packages=None, device_name=None)
+    with pytest.raises(AmheError, match="expected one of"):
+        dev.choose_device("tpu")
+
+
+def test_make_backend_cpu_is_the_pool_and_announces_only_a_choice(capsys, scene):
+    dev._announced.discard("cpu")
+    with dev.make_backend(scene.model, "cpu", nthread=1) as pool:
+        assert isinstance(pool, RolloutPool)
+    assert "rollouts on" not in capsys.readouterr().err
+    if dev.choose_device("auto") == "cpu":
+        with dev.make_backend(scene.model, "auto", nthread=1):
+            pass
+        with dev.make_backend(scene.model, "auto", nthread=1):
+            pass
+        err = capsys.readouterr().err
+        assert err.count("amhe: rollouts on cpu (mujoco.rollout, 1 threads)") == 1, err
+
+
+@pytest.mark.skipif(dev.gpu_packages() is None, reason="amhe[gpu] installed: --device cuda would run")
+def test_cli_device_cuda_without_gpu_is_one_line(capsys):
+    res = amhe(capsys, "identify", "--device", "cuda", "--generations", "1")
+    one_line_error(res, "--device cuda", "amhe[gpu]")
+
+
+@pytest.mark.skipif(dev.gpu_packages() is None, reason="amhe[gpu] installed")
+def test_warp_backend_without_warp_is_one_line(scene):
+    with pytest.raises(AmheError, match=r"not installed \(pip install 'amhe\[gpu\]'\)"):
+        rw.WarpRollout(scene.model)
+
+
+def test_mhe_device_config_key_is_checked(scene):
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    with pytest.raises(AmheError, match="mhe device 'gpu'"):
+        MHESettings(device="gpu").check()
+    space = ParameterSpace(scene, ("box_mass",))
+    with MovingHorizonEstimator(scene, space, MHESettings(device="cpu"), nthread=1) as mhe:
+        assert isinstance(mhe.pool, RolloutPool)
+
+
+def test_run_config_takes_the_mhe_device_key():
+    from amhe_cli.control.evaluate import run_settings
+    _, settings = run_settings("t1", "adaptive", {"mhe": {"device": "cpu"}})
+    assert settings.mhe.device == "cpu"
+    with pytest.raises(AmheError, match="mhe device"):
+        run_settings("t1", "adaptive", {"mhe": {"device": "gpu"}})
+
+
+def test_cli_device_unknown_is_refused(capsys):
+    code, _, err = amhe(capsys, "identify", "--device", "tpu")
+    assert code == 2 and "tpu" in err and "Traceback" not in err
+
+
+# -- field mapping -------------------------------------------------------------------------------
+
+def test_every_field_a_parameter_writes_is_batched(scene):
+    """All seven parameters free: each model field they (and mj_setConst) change is a per-world field."""
+    space = ParameterSpace(scene, tuple(PARAMETERS))
+    written = rw.written_fields(space)
+    assert {"body_mass", "body_inertia", "pair_friction", "geom_friction", "actuator_gainprm",
+            "actuator_biasprm", "body_invweight0", "dof_invweight0", "body_subtreemass"} <= written
+    assert written <= set(rw.BATCHED_FIELDS) | set(rw.HOST_ONLY_FIELDS)
+    rw.check_space(space)
+
+
+def test_a_parameter_writing_an_unbatched_field_is_refused(scene):
+    class Solref(ParameterSpace):
+        def write(self, model, vec):
+            super().write(model, vec)
+            model.geom_solref[:, 0] = 0.05
+
+    with pytest.raises(AmheError, match="geom_solref"):
+        rw.check_space(Solref(scene, ("box_mass",)))
+
+
+def test_candidate_fields_carry_mj_setconst_per_candidate(scene):
+    """The derived constants differ per candidate and equal what the CPU backend's models hold."""
+    space = ParameterSpace(scene, ("box_mass", "box_friction", "trunk_payload"))
+    P = np.array([space.vector({"box_mass": m, "box_friction": mu, "trunk_payload": t})
+                  for m, mu, t in ((2.0, 0.3, 0.0), (9.0, 0.7, 1.5))])
+    fields = rw.candidate_fields(space, P, [copy.copy(scene.model) for _ in range(2)])
+    b = scene.box_body
+    assert fields["body_mass"][:, b].tolist() == [2.0, 9.0]
+    assert fields["pair_friction"][:, 0, 0].tolist() == [0.3, 0.7]
+    assert fields["body_invweight0"][0, b, 0] > 3 * fields["body_invweight0"][1, b, 0]  # 1/m
+    assert not np.allclose(fields["dof_invweight0"][0], fields["dof_invweight0"][1])  # the payload moves the robot's
+    for k in range(2):
+        m = copy.copy(scene.model)
+        space.write(m, P[k])
+        for f in ("body_invweight0", "dof_invweight0", "body_subtreemass", "actuator_acc0"):
+            np.testing.assert_array_equal(fields[f][k], getattr(m, f))
+
+
+# -- buffer sizing -------------------------------------------------------------------------------
+
+BALLS = """
+<mujoco><option cone="{cone}"/>
+  <worldbody>
+    <geom name="floor" type="plane" size="5 5 .1" condim="3"/>
+    <body pos="0 0 .1"><freejoint/><geom type="sphere" size=".05" condim="3"/></body>
+    <body pos="1 0 .1"><freejoint/><geom type="box" size=".05 .05 .05" condim="4"/></body>
+  </worldbody>
+</mujoco>"""
+
+
+def test_buffer_sizes_count_pairs_contacts_and_rows():
+    m = mujoco.MjModel.from_xml_string(BALLS.format(cone="elliptic"))
+    # sphere-plane 1 contact, box-plane 4, sphere-box 1; rows = condim (elliptic): 3 + 4*4 + 4
+    assert rw.buffer_sizes(m) == (6, 3 + 16 + 4)
+    m = mujoco.MjModel.from_xml_string(BALLS.format(cone="pyramidal"))
+    assert rw.buffer_sizes(m) == (6, 4 + 4 * 6 + 6)  # 2 (condim - 1) rows per contact
+
+
+def test_buffer_sizes_bound_what_the_scene_uses(scene, clips):
+    """Along real clips of a push (feet on the floor, head on the box) the CPU never needs more than the
+    bound, and the chosen sizes hold twice the need but stay far below the bound."""
+    bound = rw.buffer_sizes(scene.model)
+    most = rw.measured_sizes(scene.model, clips.initial_state, clips.control, clips.horizon)
+    assert most[0] >= 4 and most[1] > 24  # the clips do touch
+    assert bound[0] >= most[0] and bound[1] >= most[1]
+    chosen = rw.choose_sizes(bound, most)
+    assert all(2 * m <= c < b for m, c, b in zip(most, chosen, bound)), (most, chosen, bound)
+    assert all(c % 16 == 0 for c in chosen)
+    assert rw.choose_sizes((20, 30), (15, 25)) == (20, 30)  # never above the bound
+
+
+# -- the box's zero friction and refusals --------------------------------------------------------
+
+def test_friction_floor_changes_no_cpu_answer(scene, clips):
+    """Raising the box geom's zero friction to MJ_MINMU (what Warp is given) leaves CPU rollouts bit-identical."""
+    low, why = rw.friction_floor(scene.model)
+    box_geom = mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_GEOM, "box")
+    assert low == [box_geom] and why is None
+    host = rw.warp_host_model(scene.model)
+    assert host.geom_friction[box_geom].min() == rw.MJ_MINMU and scene.model.geom_friction[box_geom].max() == 0
+    n = len(clips)
+    with RolloutPool(scene.model, 1) as pool:
+        h = int(clips.horizon.max())
+        a = pool.rollout([scene.model] * n, clips.initial_state, clips.control, nstep=h)
+        b = pool.rollout([host] * n, clips.initial_state, clips.control, nstep=h)
+    np.testing.assert_array_equal(a, b)
+
+
+def test_zero_friction_that_decides_a_contact_is_refused():
+    xml = BALLS.format(cone="elliptic").replace('type="sphere" size=".05" condim="3"',
+                                                'type="sphere" size=".05" condim="3" friction="0 0 0"')
+    m = mujoco.MjModel.from_xml_string(xml.replace('name="floor" type="plane"',
+                                                   'name="floor" type="plane" friction="0 0 0"'))
+    with pytest.raises(AmheError, match="below MuJoCo Warp's minimum") as e:
+        rw.check_scene(m)
+    assert "\n" not in str(e.value)
+
+
+def test_noslip_and_unsupported_integrator_are_refused(scene):
+    m = copy.copy(scene.model)
+    m.opt.noslip_iterations = 3
+    with pytest.raises(AmheError, match="noslip"):
+        rw.check_scene(m)
+    rw.check_scene(scene.model)  # the shipped scene is accepted
+
+
+def test_world_capacity_reuses_graphs():
+    assert rw.world_capacity(1) == 64
+    assert rw.world_capacity(12 * 48) == 1024
+    assert rw.world_capacity(1024) == 1024
+
+
+# -- on a GPU ------------------------------------------------------------------------------------
+
+gpu = pytest.mark.skipif(dev.choose_device("auto") != "cuda", reason="needs amhe[gpu] and a CUDA device")
+
+
+@pytest.mark.gpu
+@gpu
+def test_gpu_cost_agrees_with_cpu(scene, clips):
+    """Same candidates, same clips: box position within 10 µm (median) and 100 µm (p95) of the CPU's over
+    every rolled-out step, and > 80 % of candidate pairs ordered alike by the two costs."""
+    space = ParameterSpace(scene, ("box_mass", "box_friction"))
+    rng = np.random.default_rng(1)
+    P = space.project(space.vector(TRUTH) + rng.normal(0, 1, (16, 2)) * [1.5, 0.1])[0]
+    with RolloutCost(scene, space, clips, prior_weight=0.0, device="cpu", nthread=2) as cpu, \
+            RolloutCost(scene, space, clips, prior_weight=0.0, device="cuda") as gpu_cost:
+        qc, _ = cpu.rollout(P)
+        qg, _ = gpu_cost.rollout(P)
+        jc, jg = cpu(P), gpu_cost(P)
+    box = scene.box_qpos[:2]
+    err = np.linalg.norm(qc[..., box] - qg[..., box], axis=-1)  # (B, N_c, H) [m]
+    # measured with Warp's CPU device on const_a (12 x 48): median 0.3 µm, p95 1.2 µm, rare contact flips ~2 mm
+    assert np.median(err) < 1e-5 and np.percentile(err, 95) < 1e-4
+    pairs = [(i, j) for i in range(len(P)) for j in range(i + 1, len(P))]
+    same = np.mean([np.sign(jc[i] - jc[j]) == np.sign(jg[i] - jg[j]) for i, j in pairs])
+    assert same > 0.8
+
+
+@pytest.mark.gpu
+@gpu
+def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
+    space = ParameterSpace(scene, ("box_mass",))
+    with rw.WarpRollout(scene.model, nconmax=1, njmax=8) as w:  # sizes given: raise
+        with pytest.raises(AmheError, match="ran out of buffer space"):
+            w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+    with rw.WarpRollout(scene.model) as w, RolloutPool(scene.model, 1) as pool:  # chosen sizes: grow, repeat
+        w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+        w.nconmax, w.njmax = 2, 16
+        w._allocate(len(clips))
+        qg, _, _ = w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+        qc, _, _ = pool.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control,
+                                           clips.horizon)
+        assert w.njmax > 16 and "growing" in capsys.readouterr().err
+        assert np.median(np.abs(qg - qc)[..., scene.box_qpos[:2]]) < 1e-5
+        w.bound = w.nconmax, w.njmax = (2, 16)  # at the bound: the overflowed worlds read as diverged
+        w._allocate(len(clips))
+        with RolloutCost(scene, space, clips, pool=w) as cost:
+            br = cost.evaluate(space.mean0[None])
+        assert br.diverged.any() and "count as diverged" in capsys.readouterr().err
