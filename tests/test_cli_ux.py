@@ -196,7 +196,9 @@ def test_failure_reason_order():
     task = get_task("t1")
     t = np.arange(0, 5, 0.002)
     z = np.where(t < 3.21, 0.3, 0.1)
-    traj = type("T", (), {"t": t, "base_pos": np.stack([t, 0 * t, z], axis=1), "__len__": lambda s: len(t)})()
+    level = np.tile([1.0, 0.0, 0.0, 0.0], (len(t), 1))
+    traj = type("T", (), {"t": t, "base_pos": np.stack([t, 0 * t, z], axis=1), "base_quat": level, "meta": {},
+                          "__len__": lambda s: len(t)})()
     r = SimpleNamespace(success=False, failure=None, fell=True, t_exec=5.0, e_g=0.9, traj=traj)
     assert failure_reason(r, task) == "robot fell at t = 3.2 s"
     r.failure = "robot state stale for 40 ms: damping"

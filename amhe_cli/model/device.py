@@ -17,7 +17,6 @@ choice is printed once per process to stderr.
 from __future__ import annotations
 
 import importlib.util
-import os
 import sys
 
 from amhe_cli.errors import AmheError
@@ -54,21 +53,15 @@ def gpu_packages() -> str | None:
     return None
 
 
-def warp_device() -> str:
-    """The Warp device the ``cuda`` backend uses: ``cuda:0``, or ``$AMHE_WARP_DEVICE`` (``cpu`` runs the
-    same kernels on Warp's CPU back end, slowly: a debugging aid on machines without a GPU)."""
-    return os.environ.get("AMHE_WARP_DEVICE", "cuda:0")
-
-
 def cuda_device() -> str | None:
     """Name of the first CUDA device Warp sees, or None (also when Warp is not installed)."""
     if gpu_packages() is not None:
         return None
+    from amhe_cli.model.rollout_warp import _quiet, warp_device
     if warp_device() == "cpu":
         return "Warp CPU device (AMHE_WARP_DEVICE=cpu)"
     try:
         import warp as wp
-        from amhe_cli.model.rollout_warp import _quiet
         _quiet(wp)
         wp.init()
         if wp.get_cuda_device_count() < 1:
@@ -132,7 +125,7 @@ def make_backend(model, device: str | None = None, nthread: int | None = None):
     """
     dev = default_device() if device is None else choose_device(device)
     if dev == "cuda":
-        from amhe_cli.model.rollout_warp import WarpRollout
+        from amhe_cli.model.rollout_warp import WarpRollout, warp_device
         backend = WarpRollout(model, device=warp_device())
     else:
         from amhe_cli.model.rollout import RolloutPool

@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import os
 import sys
 import time
 
@@ -79,6 +80,12 @@ MAX_CONTACTS = {
     (_G.mjGEOM_SPHERE, _G.mjGEOM_BOX): 1, (_G.mjGEOM_CAPSULE, _G.mjGEOM_CAPSULE): 2,
     (_G.mjGEOM_CAPSULE, _G.mjGEOM_BOX): 2, (_G.mjGEOM_BOX, _G.mjGEOM_BOX): 8,
 }
+
+
+def warp_device() -> str:
+    """The Warp device the ``cuda`` backend uses: ``cuda:0``, or ``$AMHE_WARP_DEVICE`` (``cpu`` runs the
+    same kernels on Warp's CPU back end, slowly: a debugging aid on machines without a GPU)."""
+    return os.environ.get("AMHE_WARP_DEVICE", "cuda:0")
 
 
 def _quiet(wp) -> None:
@@ -337,7 +344,7 @@ class WarpRollout:
         nconmax, njmax: per-world contact and constraint buffer sizes
             (default: :func:`choose_sizes` from the first call's clips, grown on
             overflow up to :func:`buffer_sizes`; given: fixed, and an overflow raises).
-        device: Warp device (default :func:`~amhe_cli.model.device.warp_device`:
+        device: Warp device (default :func:`warp_device`:
             ``cuda:0``); ``"cpu"`` (Warp's LLVM back end, no CUDA graph, slow)
             exists to debug the backend on a machine without a GPU.
 
@@ -359,7 +366,6 @@ class WarpRollout:
         except ImportError as e:
             raise AmheError(f"--device cuda: {e.name} not installed (pip install 'amhe[gpu]')") from None
         wp.init()
-        from amhe_cli.model.device import warp_device
         device = device or warp_device()
         if device.startswith("cuda") and wp.get_cuda_device_count() < 1:
             raise AmheError("--device cuda: no CUDA device found")
