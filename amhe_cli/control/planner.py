@@ -58,9 +58,9 @@ class PlannerSettings:
     samples: int = 30
     knots: int = 4
     temperature: float = 0.12
-    #: half the public MPPI's 0.06/0.1/0.1 rad: T2 in the lock-step sim, seeds 0–15, 30 s, no fall reflex:
-    #: S_R 11/16 with 5 falls, where 0.06/0.1/0.1 with the reflex gave S_R 3/8 (seeds 0–7) and 0.02/0.03/0.03
-    #: 4/8 (benchmarks/fall_forensics.py); on the wall clock it kept the robot up in 12/14 runs against 7/14
+    #: half the public MPPI's 0.06/0.1/0.1 rad: T2 true in the lock-step sim, seeds 0–7, 30 s, with the fall
+    #: reflex, S_R 6/8 against 3/8 for 0.06/0.1/0.1 and 4/8 for 0.02/0.03/0.03, 2 falls each
+    #: (benchmarks/fall_forensics.py); on the wall clock it kept the robot up in 12/14 runs against 7/14
     noise: tuple = (0.03, 0.05, 0.05)
     refine_loops: int = 3
     refine_alpha: float = 0.5
