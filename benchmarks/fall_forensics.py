@@ -26,7 +26,7 @@ import numpy as np
 from amhe_cli.control.closed_loop import run_task
 from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.io.quat import quat_to_yaw, world_to_body
+from amhe_cli.io.quat import quat_to_yaw, rotation_from_wxyz, world_to_body
 from amhe_cli.model.scene import Scene, SceneConfig
 
 
@@ -40,9 +40,7 @@ def timeline(result, before: float) -> list[dict]:
     keep = np.where(tr.t >= tr.t[-1] - before)[0][::50]
     feet = scene.foot_bottoms(qpos[keep]) - floor < 0.01
     q = tr.base_quat[keep]
-    w, x, y, z = q.T
-    roll = np.degrees(np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
-    pitch = np.degrees(np.arcsin(np.clip(2 * (w * y - z * x), -1, 1)))
+    _, pitch, roll = np.degrees(rotation_from_wxyz(q).as_euler("ZYX")).T
     rel = world_to_body(q, tr.box_pos[keep] - tr.base_pos[keep])
     yaw = quat_to_yaw(q)
     fwd = tr.base_linvel[keep, 0] * np.cos(yaw) + tr.base_linvel[keep, 1] * np.sin(yaw)

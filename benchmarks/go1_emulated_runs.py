@@ -43,10 +43,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from queue import Queue
 
 import numpy as np
-from mcap.reader import make_reader
-
 from amhe_cli.control.tasks import get_task
-from amhe_cli.io.reader import read_float_arrays
+from amhe_cli.io.reader import inspect_log, read_float_arrays
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
@@ -63,13 +61,9 @@ def free_port() -> int:
 def run_meta(path: str) -> dict:
     """The ``amhe_run`` metadata record of a run's MCAP ({} if unreadable)."""
     try:
-        with open(path, "rb") as fh:
-            for rec in make_reader(fh).iter_metadata():
-                if rec.name == "amhe_run":
-                    return dict(rec.metadata)
+        return dict(inspect_log(path).metadata.get("amhe_run", {}))
     except Exception:  # noqa: BLE001 - a run cut off before its recording closed
-        pass
-    return {}
+        return {}
 
 
 def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> list[dict]:

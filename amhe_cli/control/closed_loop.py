@@ -342,7 +342,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     pdt = s.planner.dt
     if plant is None:
         plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime, cycle=s.cycle)
-    reflex = FallReflex(s.reflex, floor=plant.scene.config.robot_floor)
+    floor = plant.scene.config.robot_floor
+    reflex = FallReflex(s.reflex, floor=floor)
+    safety_status = getattr(plant, "safety_status", None)  # a robot's safety layer, for the view
     messages: list[str] = []
     warnings: list[str] = []
     if view is None:
@@ -384,7 +386,6 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         pscene = planner.scene
         v0, sd0 = space.physical(space.mean0, space.std0)
         est_t, est_v, est_s = [0.0], [v0], [np.zeros_like(sd0) if s.mode == "true" else sd0]
-        safety_status = getattr(plant, "safety_status", None)
 
         def show_belief(t: float, v: np.ndarray, sd: np.ndarray, window: np.ndarray | None = None) -> None:
             truth = None
@@ -477,7 +478,6 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     swap(space.vector(plant.truth_values), np.zeros(space.dim), t_ev)
             m = plant.measure()
             now = clock[0] = m.t
-            floor = sc.config.robot_floor
             if plant.armed and fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
                                       task.fall_tilt):
                 fell = True
@@ -530,8 +530,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         warn(f"run stopped: {failure}")
     traj = plant.recording()
     view.log(clock[0], f"{task.name} {s.mode}: run ended at t = {clock[0]:.2f} s", "info")
-    if view and getattr(plant, "safety_status", None) is not None:
-        view.safety(clock[0], plant.safety_status())  # the state it ended in: damped, as every Go1 run ends
+    if view and safety_status is not None:
+        view.safety(clock[0], safety_status())  # the state it ended in: damped, as every Go1 run ends
     box_final = traj.box_pos[-1, :2] if len(traj) else np.asarray(task.box_start, dtype=float)
     e_g = task.goal_error(box_final)
     speeds, cmd_speeds = np.array(speeds), np.array(cmd_speeds)

@@ -471,7 +471,7 @@ class WarpRollout:
 
     def _graph(self, hmax: int):
         """The step loop of ``hmax`` steps, captured as a CUDA graph on first need."""
-        wp, mjw = self.wp, self.mjw
+        wp = self.wp
         if hmax not in self._graphs:
             first = self.compile_time is None
             if first:
