@@ -61,6 +61,8 @@ def truth_of(log: str, given: str | None) -> dict:
 
 def one(job: dict) -> dict:
     import warnings
+    from dataclasses import replace
+
     from amhe_cli.estimation.identify import IdentifySettings, identify
     from amhe_cli.estimation.problem import load_problem
     from amhe_cli.model.params import parse_names
@@ -71,12 +73,15 @@ def one(job: dict) -> dict:
     settings = IdentifySettings(params=parse_names(job["params"]), seed=job["seed"], sigma=job.get("sigma", {}),
                                 **over)
     t0 = time.perf_counter()
-    pr = load_problem(job["log"], params=settings.params, smooth=job.get("smooth", "auto"))
+    # as `amhe identify` does: without --params the reading decides (a robot unlike its model frees its
+    # robot-side parameters beside the box)
+    pr = load_problem(job["log"], params=settings.params if job["params"] else None, smooth=job.get("smooth", "auto"))
+    settings = replace(settings, params=pr.space.free)
     res = identify(pr.traj, pr.scene, pr.space, settings, nthread=job["threads"])
     s = res.summary()
     return {"log": job["log"], "seed": job["seed"], "tag": job.get("tag", ""), "estimate": s["estimate"], "std": s["std"],
             "truth": job["truth"], "wall_s": time.perf_counter() - t0, "generations": s["generations"],
-            "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"]}
+            "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"], "std_sources": s["std_sources"]}
 
 
 def table(rows: list[dict]) -> None:

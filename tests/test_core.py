@@ -588,6 +588,11 @@ def test_identify_recovers_truth(traj, candidates):
     assert np.all(np.isfinite(res.curvature.std)) and np.all(res.curvature.std > 0)
     summ = res.summary()
     assert set(summ["estimate"]) == {"box_mass", "box_friction"}
+    # the candidate σ's are reported beside the chosen one, which is never narrower than the data's or the search's
+    src = summ["std_sources"]
+    assert {"fisher", "least_squares", "sandwich", "search"} <= set(src)
+    for name in ("box_mass", "box_friction"):
+        assert summ["std"][name] >= max(src[k][name] for k in ("least_squares", "sandwich", "search")) * (1 - 1e-9)
     assert summ["generations"] == len(res.history) <= 25
 
 

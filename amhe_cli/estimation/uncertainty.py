@@ -22,7 +22,7 @@ residual rms reported beside it is the flag for that.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +42,10 @@ class Curvature:
         cost: ``J`` at ``point``.
         data: the state-matching part of ``J`` at ``point``.
         residual_scale: ``s²``, mean squared whitened residual per observed component.
+        sources: name -> (d,) σ of each candidate covariance before the choice
+            (``fisher``: ``(F + W_p)⁻¹``; at an estimate also ``least_squares`` and
+            ``sandwich``; :func:`~amhe_cli.estimation.identify.identify` adds
+            ``clip_bootstrap`` and ``search``), for reports and calibration.
     """
 
     point: np.ndarray
@@ -52,6 +56,7 @@ class Curvature:
     cost: float
     data: float
     residual_scale: float
+    sources: dict = field(default_factory=dict)
 
 
 def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_estimate: bool = True) -> Curvature:
@@ -93,6 +98,7 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     j0 = float((rk ** 2).sum())
     s2 = j0 / max(n_obs - d, 1)
     cov = np.linalg.inv(F + prior_prec)
+    sources = {"fisher": _std(cov)}
     if at_estimate:
         cov_ls = np.linalg.inv(F / max(s2, 1e-300) + prior_prec) if s2 > 0 else cov * 0
         scores = 2.0 * np.einsum("kni,kn->ki", Gk, rk)  # (N_c, d)
@@ -101,10 +107,15 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
         S = sc.T @ sc * nc / (nc - 1)
         A_inv = np.linalg.inv(2.0 * F + 2.0 * prior_prec)
         cov_sw = A_inv @ S @ A_inv
+        sources.update(least_squares=_std(cov_ls), sandwich=_std(cov_sw))
         cov = cov_ls if np.trace(cov_ls / np.outer(space.std0, space.std0)) >= \
             np.trace(cov_sw / np.outer(space.std0, space.std0)) else cov_sw
     total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
-    return Curvature(p, F, *_cov_std_corr(cov), total, j0, s2)
+    return Curvature(p, F, *_cov_std_corr(cov), total, j0, s2, sources)
+
+
+def _std(cov: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
 def clip_information(cost: RolloutCost, point: np.ndarray, step: float = 0.25) -> np.ndarray:
@@ -144,7 +155,8 @@ def _cov_std_corr(cov: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def with_covariance(curv: Curvature, cov: np.ndarray) -> Curvature:
     """``curv`` with its covariance (and std, correlation) replaced by ``cov`` (d, d)."""
-    return Curvature(curv.point, curv.fisher, *_cov_std_corr(cov), curv.cost, curv.data, curv.residual_scale)
+    return Curvature(curv.point, curv.fisher, *_cov_std_corr(cov), curv.cost, curv.data, curv.residual_scale,
+                     dict(curv.sources))
 
 
 def coverage(estimate: np.ndarray, std: np.ndarray, truth: np.ndarray, k: float = 2.0) -> np.ndarray:
