@@ -98,7 +98,7 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
     j0 = float((rk ** 2).sum())
     s2 = j0 / max(n_obs - d, 1)
     cov = np.linalg.inv(F + prior_prec)
-    sources = {"fisher": _std(cov)}
+    sources = {"fisher": _cov_std_corr(cov)[1]}
     if at_estimate:
         cov_ls = np.linalg.inv(F / max(s2, 1e-300) + prior_prec) if s2 > 0 else cov * 0
         scores = 2.0 * np.einsum("kni,kn->ki", Gk, rk)  # (N_c, d)
@@ -107,15 +107,11 @@ def curvature(cost: RolloutCost, point: np.ndarray, rel_step: float = 0.01, at_e
         S = sc.T @ sc * nc / (nc - 1)
         A_inv = np.linalg.inv(2.0 * F + 2.0 * prior_prec)
         cov_sw = A_inv @ S @ A_inv
-        sources.update(least_squares=_std(cov_ls), sandwich=_std(cov_sw))
+        sources.update(least_squares=_cov_std_corr(cov_ls)[1], sandwich=_cov_std_corr(cov_sw)[1])
         cov = cov_ls if np.trace(cov_ls / np.outer(space.std0, space.std0)) >= \
             np.trace(cov_sw / np.outer(space.std0, space.std0)) else cov_sw
     total = j0 + cost.prior_weight * float((((p - cost.prior_mean) / cost.prior_std) ** 2).sum())
     return Curvature(p, F, *_cov_std_corr(cov), total, j0, s2, sources)
-
-
-def _std(cov: np.ndarray) -> np.ndarray:
-    return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
 def clip_information(cost: RolloutCost, point: np.ndarray, step: float = 0.25) -> np.ndarray:
