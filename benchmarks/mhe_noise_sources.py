@@ -52,36 +52,22 @@ def cleaned(traj, variant: str, clean_log: str, scene=None):
 
 
 def unpenetrate(traj, scene) -> int:
-    """Move the box out of every robot geom it reads inside of, sample by sample; returns how many moved."""
-    import mujoco
-    m = scene.model
-    d = mujoco.MjData(m)
-    box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "box")
-    robot = [g for g in range(m.ngeom) if m.geom_bodyid[g] not in (0, m.geom_bodyid[box])
-             and (m.geom_contype[g] & m.geom_conaffinity[box] or m.geom_conaffinity[g] & m.geom_contype[box])]
-    fromto, moved = np.zeros(6), 0
-    for i in range(len(traj)):
-        d.qpos[scene.base_qpos[:3]], d.qpos[scene.base_qpos[3:]] = traj.base_pos[i], traj.base_quat[i]
-        d.qpos[scene.joint_qpos] = traj.joint_pos[i]
-        d.qpos[scene.box_qpos[:3]], d.qpos[scene.box_qpos[3:]] = traj.box_pos[i], traj.box_quat[i]
-        mujoco.mj_kinematics(m, d)
-        for _ in range(3):  # a push out of one geom may leave another
-            dist, g = min((mujoco.mj_geomDistance(m, d, g, box, 0.01, fromto), g) for g in robot)
-            if dist >= 0:
-                break
-            mujoco.mj_geomDistance(m, d, g, box, 0.01, fromto)
-            n = fromto[3:] - fromto[:3]  # robot point -> box point; inside, it points into the robot
-            n = -n / max(np.linalg.norm(n), 1e-12)
-            traj.box_pos[i] += n * (-dist)
-            d.qpos[scene.box_qpos[:3]] = traj.box_pos[i]
-            mujoco.mj_kinematics(m, d)
-            moved += 1
+    """Move the box out of every robot geom it reads inside of, sample by sample (up to 3 passes: a push
+    out of one geom may leave another); returns how many moves were made."""
+    moved = 0
+    for _ in range(3):
+        gaps, dirs = robot_box_gaps(traj, scene)
+        inside = gaps < 0
+        if not inside.any():
+            break
+        traj.box_pos[inside] += dirs[inside] * (-gaps[inside])[:, None]
+        moved += int(inside.sum())
     return moved
 
 
 def robot_box_gaps(traj, scene):
-    """(T,) distance [m] from the nearest robot geom to the box (negative inside) and (T, 3) the unit
-    direction that moves the box away from it."""
+    """(T,) distance [m] from the nearest robot geom to the box (negative inside; inf beyond 2 cm) and
+    (T, 3) the unit direction that moves the box away from it."""
     import mujoco
     m = scene.model
     d = mujoco.MjData(m)
@@ -90,16 +76,14 @@ def robot_box_gaps(traj, scene):
              and (m.geom_contype[g] & m.geom_conaffinity[box] or m.geom_conaffinity[g] & m.geom_contype[box])]
     fromto = np.zeros(6)
     gaps, dirs = np.full(len(traj), np.inf), np.zeros((len(traj), 3))
-    for i in range(len(traj)):
-        d.qpos[scene.base_qpos[:3]], d.qpos[scene.base_qpos[3:]] = traj.base_pos[i], traj.base_quat[i]
-        d.qpos[scene.joint_qpos] = traj.joint_pos[i]
-        d.qpos[scene.box_qpos[:3]], d.qpos[scene.box_qpos[3:]] = traj.box_pos[i], traj.box_quat[i]
+    for i, q in enumerate(scene.qpos_qvel(traj)[0]):
+        d.qpos[:] = q
         mujoco.mj_kinematics(m, d)
         dist, g = min((mujoco.mj_geomDistance(m, d, g, box, 0.02, fromto), g) for g in robot)
         if dist >= 0.02:
             continue
         mujoco.mj_geomDistance(m, d, g, box, 0.02, fromto)
-        n = fromto[3:] - fromto[:3]
+        n = fromto[3:] - fromto[:3]  # robot point -> box point; inside, it points into the robot
         n = n / max(np.linalg.norm(n), 1e-12)
         gaps[i], dirs[i] = dist, (n if dist >= 0 else -n)
     return gaps, dirs
@@ -207,11 +191,12 @@ def main() -> None:
             got[v].append(r)
             print(f"{v} seed {seed}: " + " ".join(f"{k} {x:.3f}" if isinstance(x, float) else f"{k} {x}"
                                                   for k, x in r.items()), flush=True)
-    print(f"{'variant':<22} {'targets met':>11} {'fused mass rms':>14} {'window 8-10 s':>13} {'window 14 s-':>12} "
+    w = max(len(v) for v in variants + ["variant"])
+    print(f"{'variant':<{w}} {'targets met':>11} {'fused mass rms':>14} {'window 8-10 s':>13} {'window 14 s-':>12} "
           f"{'mu rms':>7}")
     for v in variants:
         r = got[v]
-        print(f"{v:<22} {sum(x['met'] for x in r):>5}/{len(r):<5} {100 * np.mean([x['mass_rms'] for x in r]):12.1f} % "
+        print(f"{v:<{w}} {sum(x['met'] for x in r):>5}/{len(r):<5} {100 * np.mean([x['mass_rms'] for x in r]):12.1f} % "
               f"{np.mean([x['window_pre'] for x in r]):10.2f} kg {np.mean([x['window_post'] for x in r]):9.2f} kg "
               f"{np.mean([x['mu_rms'] for x in r]):7.3f}")
 
