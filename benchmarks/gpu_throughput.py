@@ -14,24 +14,31 @@ Measures, each written as one flushed line to stdout and to ``$OUT/gpu_throughpu
 3. **throughput**: useful simulated steps per second (candidates × Σ clip
    horizons / wall time of ``rollout_candidates``, parameter writes and
    transfers included) for several batch sizes (worlds = candidates × clips), and
-   the GPU graph alone (launch to sync).
+   the GPU graph alone (launch to sync); then the call's phases (``phases``: slot and graph
+   set-up, parameter fields on the host, their upload, the steps, the read-back, per call).
 4. **identify**: ``identify`` on the log on cpu, on cuda with the CPU's
    settings, and on cuda with wider settings (``--wide POP,CLIPS``): wall
-   time and the error against the log's truth.
+   time and the error against the log's truth (``--profile``: where the cuda run's time went).
+5. with ``--cli``, ``amhe identify LOG --device cpu|cuda`` as a user runs it, each a fresh process
+   (imports, reading the log, loading the kernels from the cache included; cuda twice).
 
 The last lines are the ratios ``ratio_steps_best=`` (best Warp useful steps/s over best CPU
 useful steps/s) and ``ratio_identify=`` (CPU identify wall / GPU identify wall).
 
 Usage::
 
-    python benchmarks/gpu_throughput.py LOG [--clips 48] [--batches 256,1024,4096,16384] [--repeats 3]
+    python benchmarks/gpu_throughput.py LOG [--clips 48] [--batches 256,1024,4096,16384] [--repeats 3] [--profile] [--cli]
 """
 
 from __future__ import annotations
 
 import argparse
+import cProfile
+import io
 import os
+import pstats
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -61,6 +68,13 @@ def emit(line: str) -> None:
         _sink.flush()
 
 
+def phases(timing: dict) -> str:
+    """WarpRollout.timing as per-call seconds of each phase."""
+    n = max(1, timing["calls"])
+    return " ".join(f"{k}={v / n:.4f}" for k, v in timing.items() if k not in ("calls", "slots", "graphs")) + \
+        f" slots={timing['slots']} graphs={timing['graphs']} calls={timing['calls']}"
+
+
 def pair_agreement(a: np.ndarray, b: np.ndarray) -> float:
     """Share of pairs (i < j) that ``a`` and ``b`` order alike (ties count as alike only if tied in both)."""
     i, j = np.triu_indices(len(a), 1)
@@ -77,6 +91,9 @@ def main(argv=None) -> None:
     ap.add_argument("--wide", default="48,96", help="identify on cuda with this POPSIZE,CLIPS too")
     ap.add_argument("--skip", default="", help="comma-separated sections to skip: agreement,throughput,identify")
     ap.add_argument("--out", default=os.environ.get("OUT", "."), help="folder of gpu_throughput.txt")
+    ap.add_argument("--profile", action="store_true", help="profile identify on cuda (cProfile, top 30)")
+    ap.add_argument("--cli", action="store_true", help="also time `amhe identify LOG --device cpu|cuda` as a "
+                    "user runs it (a fresh process each: imports, log reading, kernel loading from the cache)")
     ap.add_argument("--warp-device", default=None, help="Warp device (default cuda:0, or $AMHE_WARP_DEVICE; "
                     "cpu: debug the script without a GPU)")
     a = ap.parse_args(argv)
@@ -132,15 +149,18 @@ def main(argv=None) -> None:
             useful = B * clips.steps
             warp.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)  # capture at this size
             tg = []
+            warp.timing.update({k: 0 for k in warp.timing})
             for _ in range(a.repeats):
                 t = time.perf_counter()
                 warp.rollout_candidates(space, P, c.initial_state, c.control, c.horizon)
                 tg.append(time.perf_counter() - t)
-            graph = warp._graph(int(c.control.shape[1]))
+            emit(f"phases worlds={B * len(c)} per call [s]: " + phases(warp.timing))
+            slot = warp._slot(B * len(c))
+            graph = warp._graph(slot, int(c.control.shape[1]))
             tl = []
             for _ in range(a.repeats):
                 t = time.perf_counter()
-                warp._launch(graph)
+                warp._launch(slot, graph)
                 warp.wp.synchronize()
                 tl.append(time.perf_counter() - t)
             tc = []
@@ -164,9 +184,17 @@ def main(argv=None) -> None:
                                         (f"cuda_pop{pop}_clips{ncl}", "cuda",
                                          IdentifySettings(popsize=pop, n_clips=ncl))):
             dev.set_default(device)
+            prof = cProfile.Profile() if a.profile and device == "cuda" else None
             t = time.perf_counter()
+            if prof:
+                prof.enable()
             res = identify(traj, scene, space, settings)
             wall = time.perf_counter() - t
+            if prof:
+                prof.disable()
+                text = io.StringIO()
+                pstats.Stats(prof, stream=text).sort_stats("cumulative").print_stats(30)
+                emit(f"profile identify {label}:\n" + text.getvalue())
             walls[label] = wall
             est = space.values(res.estimate)
             errs = []
@@ -177,6 +205,16 @@ def main(argv=None) -> None:
             emit(f"identify {label}: wall_s={wall:.2f} evaluations={res.evaluations} generations={len(res.history)} "
                  + " ".join(errs))
         ratio_identify = walls["cpu"] / walls["cuda"]
+    if a.cli:
+        for device in ("cpu", "cuda", "cuda"):
+            t = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "identify", a.log,
+                                  "--device", device, "--json"], capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            line = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else ""
+            emit(f"cli identify --device {device}: wall_s={wall:.2f} rc={out.returncode} "
+                 f"stderr_tail={out.stderr.strip().splitlines()[-1:] if out.stderr.strip() else ''} "
+                 f"json_chars={len(line)}")
     if best_c:
         emit(f"ratio_steps_best={best_g / best_c:.2f}")
     if ratio_identify is not None:

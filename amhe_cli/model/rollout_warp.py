@@ -336,6 +336,17 @@ def world_capacity(nworld: int) -> int:
     return max(64, 1 << int(np.ceil(np.log2(max(nworld, 1)))))
 
 
+class _Slot:
+    """The device state of one world capacity: model and data for ``cap`` worlds, the per-world field views,
+    the clip inputs and state outputs (with page-locked host twins), and the step loops captured on them."""
+
+    def __init__(self, cap: int):
+        self.cap = cap
+        self.graphs: dict[int, object] = {}
+        self.hcap = self.ncap = 0
+        self.clipkey = None
+
+
 class WarpRollout:
     """Batched rollouts on a CUDA device through MuJoCo Warp (the ``cuda`` rollout backend).
 
@@ -381,9 +392,11 @@ class WarpRollout:
         self.device = wp.get_device(device)
         self._models: list[mujoco.MjModel] = []
         self._spaces_checked: set[int] = set()
-        self._cap = 0
-        self._graphs: dict[int, object] = {}
+        self._slots: dict[int, _Slot] = {}
         self.compile_time: float | None = None
+        #: host wall seconds per phase of rollout_candidates, summed over calls (benchmarks/gpu_throughput.py)
+        self.timing = {"setup": 0.0, "fields": 0.0, "upload": 0.0, "steps": 0.0, "readback": 0.0, "calls": 0,
+                       "slots": 0, "graphs": 0}
         self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
     def describe(self) -> str:
@@ -398,9 +411,11 @@ class WarpRollout:
 
     def close(self) -> None:
         """Drop the device buffers and graphs."""
-        self._graphs.clear()
-        self._cap = 0
-        self.m = self.d = None
+        self._slots.clear()
+
+    def _reset(self) -> None:
+        """Drop every slot, so the next call allocates with the current buffer sizes."""
+        self._slots.clear()
 
     def models(self, n: int) -> list[mujoco.MjModel]:
         """``n`` host model copies to write candidates into (created once, reused)."""
@@ -409,70 +424,86 @@ class WarpRollout:
         return self._models[:n]
 
     # -- device set-up ---------------------------------------------------------
-    def _allocate(self, nworld: int) -> None:
-        """Model, data and per-world field views for ``world_capacity(nworld)`` worlds (drops graphs and buffers)."""
-        wp, mjw = self.wp, self.mjw
+    def _slot(self, nworld: int) -> _Slot:
+        """The slot for ``world_capacity(nworld)`` worlds, allocated on first need.
+
+        Each capacity keeps its own model, data and graphs, so a narrow call (a CMA-ES
+        generation) never steps the worlds a wider one (the clip choice) needed:
+        a graph steps every world of its slot.
+        """
         cap = world_capacity(nworld)
+        if cap not in self._slots:
+            self._slots[cap] = self._allocate(cap)
+        return self._slots[cap]
+
+    def _allocate(self, cap: int) -> _Slot:
+        """Model, data and per-world field views for ``cap`` worlds."""
+        wp, mjw = self.wp, self.mjw
+        t0 = time.perf_counter()
+        s = _Slot(cap)
         batch = {f: cap for f in BATCHED_FIELDS if getattr(self.host, f).size}
         try:
             with wp.ScopedDevice(self.device):
-                self.m = mjw.put_model(self.host, batch_sizes=batch)
-                self.m.opt.warn_overflow = 0  # overflows are read from d.overflow and handled, not printed
-                self.d = mjw.put_data(self.host, mujoco.MjData(self.host), nworld=cap, nconmax=self.nconmax,
-                                      njmax=self.njmax)
+                s.m = mjw.put_model(self.host, batch_sizes=batch)
+                s.m.opt.warn_overflow = 0  # overflows are read from d.overflow and handled, not printed
+                s.d = mjw.put_data(self.host, mujoco.MjData(self.host), nworld=cap, nconmax=self.nconmax,
+                                   njmax=self.njmax)
                 # each batched field seen as (cap, k) floats, for the candidate -> world expansion
-                self._flat = {}
+                s.flat = {}
                 for f in batch:
-                    arr = getattr(self.m, f)
+                    arr = getattr(s.m, f)
                     if not arr.is_contiguous or arr.shape[0] != cap:
                         raise NotImplementedError(f"model field {f} is not a contiguous per-world array")
                     k = arr.size * wp.types.type_size_in_bytes(arr.dtype) // 4 // cap
-                    self._flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
-                self.nclip = wp.zeros(1, dtype=int)
+                    s.flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
+                s.nclip = wp.zeros(1, dtype=int)
         except (NotImplementedError, ValueError) as e:
             raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
                             "(use --device cpu)") from None
-        self._cap = cap
-        self._graphs.clear()
-        self._hcap = self._ncap = 0
-        self._clipkey = None
+        self.timing["setup"] += time.perf_counter() - t0
+        self.timing["slots"] += 1
+        return s
 
-    def _buffers(self, nclip: int, hmax: int) -> None:
+    def _buffers(self, s: _Slot, nclip: int, hmax: int) -> None:
         """Clip inputs (N_c, ...) and state outputs (worlds, H, ...) at least this large (drops graphs if grown)."""
-        if hmax <= self._hcap and nclip <= self._ncap:
+        if hmax <= s.hcap and nclip <= s.ncap:
             return
         wp, m = self.wp, self.host
-        self._hcap, self._ncap = max(hmax, self._hcap), max(nclip, self._ncap)
+        s.hcap, s.ncap = max(hmax, s.hcap), max(nclip, s.ncap)
         with wp.ScopedDevice(self.device):
-            self.init_in = wp.zeros((self._ncap, 1 + m.nq + m.nv), dtype=float)
-            self.ctrl_in = wp.zeros((self._ncap, self._hcap, m.nu), dtype=float)
-            self.qpos_out = wp.zeros((self._cap, self._hcap, m.nq), dtype=float)
-            self.qvel_out = wp.zeros((self._cap, self._hcap, m.nv), dtype=float)
-        self._graphs.clear()
-        self._clipkey = None
+            s.init_in = wp.zeros((s.ncap, 1 + m.nq + m.nv), dtype=float)
+            s.ctrl_in = wp.zeros((s.ncap, s.hcap, m.nu), dtype=float)
+            s.qpos_out = wp.zeros((s.cap, s.hcap, m.nq), dtype=float)
+            s.qvel_out = wp.zeros((s.cap, s.hcap, m.nv), dtype=float)
+        # page-locked host twins, so the read-back is one DMA at full bus speed (a pageable copy is staged)
+        pinned = self.device.is_cuda
+        s.qpos_host = wp.empty(s.qpos_out.shape, dtype=float, device="cpu", pinned=pinned)
+        s.qvel_host = wp.empty(s.qvel_out.shape, dtype=float, device="cpu", pinned=pinned)
+        s.graphs.clear()
+        s.clipkey = None
 
-    def _upload_clips(self, initial_state: np.ndarray, control: np.ndarray) -> None:
+    def _upload_clips(self, s: _Slot, initial_state: np.ndarray, control: np.ndarray) -> None:
         """Recorded starts and controls to the device, once per clip set (a changed set is uploaded anew)."""
         key = (initial_state.shape, control.shape,
                hashlib.blake2b(np.ascontiguousarray(initial_state).tobytes()
                                + np.ascontiguousarray(control).tobytes(), digest_size=16).digest())
-        if key == self._clipkey:
+        if key == s.clipkey:
             return
         m, n, hmax = self.host, len(initial_state), control.shape[1]
-        init = np.zeros((self._ncap, 1 + m.nq + m.nv), dtype=np.float32)
+        init = np.zeros((s.ncap, 1 + m.nq + m.nv), dtype=np.float32)
         init[:n] = initial_state[:, :1 + m.nq + m.nv]
-        ctrl = np.zeros((self._ncap, self._hcap, m.nu), dtype=np.float32)
+        ctrl = np.zeros((s.ncap, s.hcap, m.nu), dtype=np.float32)
         ctrl[:n, :hmax] = control
         ctrl[:n, hmax:] = control[:, -1:]
-        self.init_in.assign(init)
-        self.ctrl_in.assign(ctrl)
-        self.nclip.assign(np.array([n], dtype=np.int32))
-        self._clipkey = key
+        s.init_in.assign(init)
+        s.ctrl_in.assign(ctrl)
+        s.nclip.assign(np.array([n], dtype=np.int32))
+        s.clipkey = key
 
-    def _graph(self, hmax: int):
-        """The step loop of ``hmax`` steps, captured as a CUDA graph on first need."""
+    def _graph(self, s: _Slot, hmax: int):
+        """The step loop of ``hmax`` steps on slot ``s``, captured as a CUDA graph on first need."""
         wp = self.wp
-        if hmax not in self._graphs:
+        if hmax not in s.graphs:
             first = self.compile_time is None
             if first:
                 print("amhe: compiling MuJoCo Warp kernels, or loading them from Warp's kernel cache "
@@ -481,48 +512,64 @@ class WarpRollout:
             t0 = time.perf_counter()
             with wp.ScopedDevice(self.device):
                 if first:  # load every module outside the capture
-                    self._steps(1)
+                    self._steps(s, 1)
                     wp.synchronize()
                 if self.device.is_cuda:
                     with wp.ScopedCapture() as cap:
-                        self._steps(hmax)
+                        self._steps(s, hmax)
                     graph = cap.graph
                 else:
                     graph = hmax  # no graphs off CUDA: _launch steps eagerly
             if first:
                 self.compile_time = time.perf_counter() - t0
                 print(f"amhe: MuJoCo Warp kernels ready in {self.compile_time:.1f} s", file=sys.stderr, flush=True)
-            self._graphs[hmax] = graph
-        return self._graphs[hmax]
+            else:
+                self.timing["setup"] += time.perf_counter() - t0
+            self.timing["graphs"] += 1
+            s.graphs[hmax] = graph
+        return s.graphs[hmax]
 
-    def _steps(self, hmax: int) -> None:
+    def _steps(self, s: _Slot, hmax: int) -> None:
         """Reset every world to its clip's start, then ``hmax`` steps: set the step's control, step, record."""
-        wp, mjw, m, d = self.wp, self.mjw, self.host, self.d
+        wp, mjw, m, d = self.wp, self.mjw, self.host, s.d
         from amhe_cli.model import _warp_kernels as K
-        wp.launch(K.reset_worlds, dim=self._cap, inputs=[self.nclip, m.nq, m.nv, self.init_in],
+        wp.launch(K.reset_worlds, dim=s.cap, inputs=[s.nclip, m.nq, m.nv, s.init_in],
                   outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow])
         for t in range(hmax):
-            wp.launch(K.set_ctrl, dim=(self._cap, m.nu), inputs=[t, self.nclip, self.ctrl_in], outputs=[d.ctrl])
-            mjw.step(self.m, d)
-            wp.launch(K.record, dim=(self._cap, max(m.nq, m.nv)), inputs=[t, d.qpos, d.qvel],
-                      outputs=[self.qpos_out, self.qvel_out])
+            wp.launch(K.set_ctrl, dim=(s.cap, m.nu), inputs=[t, s.nclip, s.ctrl_in], outputs=[d.ctrl])
+            mjw.step(s.m, d)
+            wp.launch(K.record, dim=(s.cap, max(m.nq, m.nv)), inputs=[t, d.qpos, d.qvel],
+                      outputs=[s.qpos_out, s.qvel_out])
 
-    def _launch(self, graph) -> None:
+    def _launch(self, s: _Slot, graph) -> None:
         if self.device.is_cuda:
             self.wp.capture_launch(graph)
         else:
             with self.wp.ScopedDevice(self.device):
-                self._steps(graph)
+                self._steps(s, graph)
 
-    def _set_fields(self, fields: dict[str, np.ndarray], ncand: int) -> None:
+    def _readback(self, s: _Slot, nworld: int, hmax: int) -> tuple[np.ndarray, np.ndarray]:
+        """qpos (nworld, hmax, nq) and qvel (nworld, hmax, nv) of the last launch, as new host arrays.
+
+        Only the first ``nworld`` worlds' rows are copied (into the pinned twins), then out of them into
+        arrays the caller owns: the twins are reused by the next call.
+        """
+        wp, m = self.wp, self.host
+        rows = nworld * s.hcap
+        wp.copy(s.qpos_host, s.qpos_out, count=rows * m.nq)
+        wp.copy(s.qvel_host, s.qvel_out, count=rows * m.nv)
+        wp.synchronize_device(self.device)
+        return (np.array(s.qpos_host.numpy()[:nworld, :hmax]), np.array(s.qvel_host.numpy()[:nworld, :hmax]))
+
+    def _set_fields(self, s: _Slot, fields: dict[str, np.ndarray], ncand: int) -> None:
         """Per-candidate (B, ...) fields to every world (world w: candidate w // N_c; padding: candidate 0)."""
         wp = self.wp
         from amhe_cli.model import _warp_kernels as K
         with wp.ScopedDevice(self.device):
             for f, v in fields.items():
-                dst = self._flat[f]
+                dst = s.flat[f]
                 src = wp.array(np.ascontiguousarray(v.reshape(ncand, -1), dtype=np.float32), dtype=float)
-                wp.launch(K.expand, dim=dst.shape, inputs=[ncand, self.nclip, src], outputs=[dst])
+                wp.launch(K.expand, dim=dst.shape, inputs=[ncand, s.nclip, src], outputs=[dst])
 
     # -- the backend interface -------------------------------------------------
     def rollout_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
@@ -554,19 +601,27 @@ class WarpRollout:
         if not self.njmax:
             self.nconmax, self.njmax = choose_sizes(self.bound, measured_sizes(self.template, initial_state,
                                                                                control, horizon))
-        if nworld > self._cap:
-            self._allocate(nworld)
-        self._buffers(n, hmax)
-        self._upload_clips(initial_state, control)
-        graph = self._graph(hmax)
-        m = self.host
-        self._set_fields(candidate_fields(space, P, self.models(B), self._raise), B)
-        self._launch(graph)
-        qpos = self.qpos_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nq)
-        qvel = self.qvel_out.numpy()[:nworld, :hmax].reshape(B, n, hmax, m.nv)
-        if not self.device.is_cuda:  # Warp's CPU arrays are views of its buffers: keep a copy
-            qpos, qvel = qpos.copy(), qvel.copy()
-        flags = self.d.overflow.numpy()[:nworld]
+        s = self._slot(nworld)
+        self._buffers(s, n, hmax)
+        self._upload_clips(s, initial_state, control)
+        graph = self._graph(s, hmax)
+        m, tm = self.host, self.timing
+        t0 = time.perf_counter()
+        fields = candidate_fields(space, P, self.models(B), self._raise)
+        t1 = time.perf_counter()
+        self._set_fields(s, fields, B)
+        t2 = time.perf_counter()
+        self._launch(s, graph)
+        self.wp.synchronize_device(self.device)
+        t3 = time.perf_counter()
+        qpos, qvel = self._readback(s, nworld, hmax)
+        qpos, qvel = qpos.reshape(B, n, hmax, m.nq), qvel.reshape(B, n, hmax, m.nv)
+        flags = s.d.overflow.numpy()[:nworld]
+        tm["fields"] += t1 - t0
+        tm["upload"] += t2 - t1
+        tm["steps"] += t3 - t2
+        tm["readback"] += time.perf_counter() - t3
+        tm["calls"] += 1
         bad = {name: int(np.count_nonzero(flags & bit)) for bit, name in OVERFLOW_BITS.items()}
         bad = {k: v for k, v in bad.items() if v}
         if bad:
@@ -587,7 +642,7 @@ class WarpRollout:
             self.nconmax, self.njmax = (min(self.bound[0], 2 * self.nconmax), min(self.bound[1], 2 * self.njmax))
             print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
                   f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
-            self._allocate(nworld)
+            self._reset()
             return self.rollout_candidates(space, P, initial_state, control, horizon)
         for k, h in enumerate(np.asarray(horizon, dtype=int)):
             qpos[:, k, h:] = qpos[:, k, h - 1:h]
