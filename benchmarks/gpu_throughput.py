@@ -21,6 +21,8 @@ Measures, each written as one flushed line to stdout and to ``$OUT/gpu_throughpu
    time and the error against the log's truth (``--profile``: where the cuda run's time went).
 5. with ``--cli``, ``amhe identify LOG --device cpu|cuda`` as a user runs it, each a fresh process
    (imports, reading the log, loading the kernels from the cache included; cuda twice).
+6. with ``--mhe LOG``, ``amhe mhe-replay LOG --realtime`` on cpu (default samples) and on cuda
+   (``--mhe-samples``, 200): real-time factor and tracking error against the log's truth.
 
 The last lines are the ratios ``ratio_steps_best=`` (best Warp useful steps/s over best CPU
 useful steps/s) and ``ratio_identify=`` (CPU identify wall / GPU identify wall).
@@ -35,6 +37,7 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import json
 import os
 import pstats
 import statistics
@@ -94,6 +97,9 @@ def main(argv=None) -> None:
     ap.add_argument("--profile", action="store_true", help="profile identify on cuda (cProfile, top 30)")
     ap.add_argument("--cli", action="store_true", help="also time `amhe identify LOG --device cpu|cuda` as a "
                     "user runs it (a fresh process each: imports, log reading, kernel loading from the cache)")
+    ap.add_argument("--mhe", metavar="LOG", help="also run `amhe mhe-replay LOG --realtime` on cpu with the default "
+                    "samples and on cuda with --mhe-samples: real-time factor and tracking error")
+    ap.add_argument("--mhe-samples", type=int, default=200)
     ap.add_argument("--warp-device", default=None, help="Warp device (default cuda:0, or $AMHE_WARP_DEVICE; "
                     "cpu: debug the script without a GPU)")
     a = ap.parse_args(argv)
@@ -215,6 +221,21 @@ def main(argv=None) -> None:
             emit(f"cli identify --device {device}: wall_s={wall:.2f} rc={out.returncode} "
                  f"stderr_tail={out.stderr.strip().splitlines()[-1:] if out.stderr.strip() else ''} "
                  f"json_chars={len(line)}")
+    if a.mhe:
+        for device, extra in (("cpu", []), ("cuda", ["--samples", str(a.mhe_samples)])):
+            csv = Path(a.out) / f"mhe_{device}.csv"
+            t = time.perf_counter()
+            out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "mhe-replay", a.mhe,
+                                  "--realtime", "--device", device, "--json", "--force", "--out", str(csv), *extra],
+                                 capture_output=True, text=True)
+            wall = time.perf_counter() - t
+            try:
+                r = json.loads(out.stdout.strip().splitlines()[-1])
+                emit(f"mhe-replay --device {device} {' '.join(extra)}: wall_s={wall:.1f} "
+                     f"realtime_factor={r['realtime_factor']:.2f} behind={r['behind']} "
+                     f"tracking_error={json.dumps(r.get('tracking_error'))}")
+            except (IndexError, ValueError, KeyError):
+                emit(f"mhe-replay --device {device}: rc={out.returncode} {out.stderr.strip()[-300:]}")
     if best_c:
         emit(f"ratio_steps_best={best_g / best_c:.2f}")
     if ratio_identify is not None:
