@@ -162,11 +162,10 @@ def main(argv=None) -> None:
                 tg.append(time.perf_counter() - t)
             emit(f"phases worlds={B * len(c)} per call [s]: " + phases(warp.timing))
             slot = warp._slot(B * len(c))
-            graph = warp._graph(slot, int(c.control.shape[1]))
             tl = []
             for _ in range(a.repeats):
                 t = time.perf_counter()
-                warp._launch(slot, graph)
+                warp._launch(slot, int(c.control.shape[1]))
                 warp.wp.synchronize()
                 tl.append(time.perf_counter() - t)
             tc = []

@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/identify_accuracy.py LOG [LOG ...] [--seeds 8] [--jobs 4] [--threads 1]
-        [--params box_mass,box_inertia,box_friction] [--out rows.jsonl] [--identify-arg --clips=24 ...]
+        [--params box_mass,box_inertia,box_friction] [--out rows.jsonl] [--identify-arg --clips=24 ...] [--device cuda]
 
 The truth of each LOG is read from ``<LOG stem>.truth.yaml`` beside it
 (``box.mass_schedule[0]`` mass and inertia, ``floor.regions[0]`` friction), from
@@ -65,8 +65,10 @@ def one(job: dict) -> dict:
 
     from amhe_cli.estimation.identify import IdentifySettings, identify
     from amhe_cli.estimation.problem import load_problem
+    from amhe_cli.model import device as dev
     from amhe_cli.model.params import parse_names
     warnings.simplefilter("ignore")
+    dev.set_default(job.get("device", "cpu"))
     names = {"clips": "n_clips", "generations": "max_gen", "popsize": "popsize", "horizon": "horizon"}
     over = {names.get(k, k): (tuple(float(x) for x in str(v).split(",")) if k == "horizon" else v)
             for k, v in job["identify"].items()}
@@ -119,6 +121,7 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--params", default=None)
+    ap.add_argument("--device", default="cpu", choices=("cpu", "cuda", "auto"), help="where rollouts run (as --device)")
     ap.add_argument("--out", default=None, help="JSON-lines file the rows are appended to as they finish")
     ap.add_argument("--identify-arg", action="append", default=[], metavar="KEY=VALUE",
                     help="identify setting other than the CLI default: clips, popsize, generations, "
@@ -142,7 +145,7 @@ def main() -> None:
         truth = truth_of(log, given or None)
         sigma = {k: float(v) for k, _, v in (x.partition("=") for x in a.sigma)}
         smooth = a.smooth if a.smooth == "auto" else int(a.smooth)
-        jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads, "params": a.params, "identify": ident, "truth": truth}
+        jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads, "device": a.device, "params": a.params, "identify": ident, "truth": truth}
                  for s in range(a.seeds)]
     rows = []
     out = open(a.out, "a") if a.out else None

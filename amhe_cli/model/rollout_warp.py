@@ -3,7 +3,7 @@
 The cost module (paper eq. 1 / eq. 4, :mod:`~amhe_cli.estimation.cost`) asks a
 backend to roll ``B`` candidates out over ``N_c`` clips. Here that is one
 MuJoCo Warp model with ``B · N_c`` worlds (world ``b · N_c + k`` = candidate
-``b`` on clip ``k``) stepped ``H_max`` times by one captured CUDA graph:
+``b`` on clip ``k``) stepped ``H_max`` times by launching one captured CUDA graph of a step:
 
 * **Per-world fields.** Everything :meth:`ParameterSpace.write
   <amhe_cli.model.params.ParameterSpace.write>` changes is a batched model
@@ -332,7 +332,7 @@ def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel],
 
 def world_capacity(nworld: int) -> int:
     """Worlds to allocate for ``nworld``: the next power of two (at least 64), so a batch that shrinks or
-    grows a little reuses the captured graphs."""
+    grows a little reuses its slot (model, data and captured step)."""
     return max(64, 1 << int(np.ceil(np.log2(max(nworld, 1)))))
 
 
@@ -342,7 +342,7 @@ class _Slot:
 
     def __init__(self, cap: int):
         self.cap = cap
-        self.graphs: dict[int, object] = {}
+        self.graph = None
         self.hcap = self.ncap = 0
         self.clipkey = None
 
@@ -427,9 +427,9 @@ class WarpRollout:
     def _slot(self, nworld: int) -> _Slot:
         """The slot for ``world_capacity(nworld)`` worlds, allocated on first need.
 
-        Each capacity keeps its own model, data and graphs, so a narrow call (a CMA-ES
-        generation) never steps the worlds a wider one (the clip choice) needed:
-        a graph steps every world of its slot.
+        Each capacity keeps its own model, data and captured step, so a narrow call (a
+        CMA-ES generation) never steps the worlds a wider one (the clip choice) needed:
+        the graph steps every world of its slot.
         """
         cap = world_capacity(nworld)
         if cap not in self._slots:
@@ -457,6 +457,7 @@ class WarpRollout:
                     k = arr.size * wp.types.type_size_in_bytes(arr.dtype) // 4 // cap
                     s.flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
                 s.nclip = wp.zeros(1, dtype=int)
+                s.step = wp.zeros(1, dtype=int)
         except (NotImplementedError, ValueError) as e:
             raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
                             "(use --device cpu)") from None
@@ -465,7 +466,7 @@ class WarpRollout:
         return s
 
     def _buffers(self, s: _Slot, nclip: int, hmax: int) -> None:
-        """Clip inputs (N_c, ...) and state outputs (worlds, H, ...) at least this large (drops graphs if grown)."""
+        """Clip inputs (N_c, ...) and state outputs (worlds, H, ...) at least this large (drops the graph if grown)."""
         if hmax <= s.hcap and nclip <= s.ncap:
             return
         wp, m = self.wp, self.host
@@ -479,7 +480,7 @@ class WarpRollout:
         pinned = self.device.is_cuda
         s.qpos_host = wp.empty(s.qpos_out.shape, dtype=float, device="cpu", pinned=pinned)
         s.qvel_host = wp.empty(s.qvel_out.shape, dtype=float, device="cpu", pinned=pinned)
-        s.graphs.clear()
+        s.graph = None  # it writes the old buffers
         s.clipkey = None
 
     def _upload_clips(self, s: _Slot, initial_state: np.ndarray, control: np.ndarray) -> None:
@@ -500,10 +501,18 @@ class WarpRollout:
         s.nclip.assign(np.array([n], dtype=np.int32))
         s.clipkey = key
 
-    def _graph(self, s: _Slot, hmax: int):
-        """The step loop of ``hmax`` steps on slot ``s``, captured as a CUDA graph on first need."""
+    def _graph(self, s: _Slot):
+        """One step of slot ``s`` (set the step's control, step, record, advance the counter), captured as a
+        CUDA graph on first need; a call launches it ``H_max`` times.
+
+        One step, not the whole loop: capturing records every kernel launch of
+        every step from Python (about 27 ms a step here), so a 65-step loop
+        cost 1.3–1.9 s to capture for each new width and horizon — most of a
+        short ``identify``'s time (measured: 5.3 s of 9.8 s). Launching a
+        captured step costs microseconds against the ~1 ms it runs.
+        """
         wp = self.wp
-        if hmax not in s.graphs:
+        if s.graph is None:
             first = self.compile_time is None
             if first:
                 print("amhe: compiling MuJoCo Warp kernels, or loading them from Warp's kernel cache "
@@ -512,41 +521,50 @@ class WarpRollout:
             t0 = time.perf_counter()
             with wp.ScopedDevice(self.device):
                 if first:  # load every module outside the capture
-                    self._steps(s, 1)
+                    self._reset_worlds(s)
+                    self._step(s)
                     wp.synchronize()
                 if self.device.is_cuda:
                     with wp.ScopedCapture() as cap:
-                        self._steps(s, hmax)
-                    graph = cap.graph
+                        self._step(s)
+                    s.graph = cap.graph
                 else:
-                    graph = hmax  # no graphs off CUDA: _launch steps eagerly
+                    s.graph = "eager"  # no graphs off CUDA: _launch steps eagerly
             if first:
                 self.compile_time = time.perf_counter() - t0
                 print(f"amhe: MuJoCo Warp kernels ready in {self.compile_time:.1f} s", file=sys.stderr, flush=True)
             else:
                 self.timing["setup"] += time.perf_counter() - t0
             self.timing["graphs"] += 1
-            s.graphs[hmax] = graph
-        return s.graphs[hmax]
+        return s.graph
 
-    def _steps(self, s: _Slot, hmax: int) -> None:
-        """Reset every world to its clip's start, then ``hmax`` steps: set the step's control, step, record."""
-        wp, mjw, m, d = self.wp, self.mjw, self.host, s.d
+    def _reset_worlds(self, s: _Slot) -> None:
+        """Every world to its clip's start, the step counter to 0."""
         from amhe_cli.model import _warp_kernels as K
-        wp.launch(K.reset_worlds, dim=s.cap, inputs=[s.nclip, m.nq, m.nv, s.init_in],
-                  outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow])
-        for t in range(hmax):
-            wp.launch(K.set_ctrl, dim=(s.cap, m.nu), inputs=[t, s.nclip, s.ctrl_in], outputs=[d.ctrl])
-            mjw.step(s.m, d)
-            wp.launch(K.record, dim=(s.cap, max(m.nq, m.nv)), inputs=[t, d.qpos, d.qvel],
-                      outputs=[s.qpos_out, s.qvel_out])
+        m, d = self.host, s.d
+        self.wp.launch(K.reset_worlds, dim=s.cap, inputs=[s.nclip, m.nq, m.nv, s.init_in],
+                       outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow, s.step])
 
-    def _launch(self, s: _Slot, graph) -> None:
-        if self.device.is_cuda:
-            self.wp.capture_launch(graph)
-        else:
-            with self.wp.ScopedDevice(self.device):
-                self._steps(s, graph)
+    def _step(self, s: _Slot) -> None:
+        """One step of every world: the step's control, ``mjw.step``, the state recorded, the counter advanced."""
+        wp, m, d = self.wp, self.host, s.d
+        from amhe_cli.model import _warp_kernels as K
+        wp.launch(K.set_ctrl, dim=(s.cap, m.nu), inputs=[s.step, s.nclip, s.ctrl_in], outputs=[d.ctrl])
+        self.mjw.step(s.m, d)
+        wp.launch(K.record, dim=(s.cap, max(m.nq, m.nv)), inputs=[s.step, d.qpos, d.qvel],
+                  outputs=[s.qpos_out, s.qvel_out])
+        wp.launch(K.advance, dim=1, inputs=[s.step])
+
+    def _launch(self, s: _Slot, hmax: int) -> None:
+        """Reset every world, then ``hmax`` steps (the captured step graph launched ``hmax`` times)."""
+        graph = self._graph(s)
+        with self.wp.ScopedDevice(self.device):
+            self._reset_worlds(s)
+            for _ in range(hmax):
+                if self.device.is_cuda:
+                    self.wp.capture_launch(graph)
+                else:
+                    self._step(s)
 
     def _readback(self, s: _Slot, nworld: int, hmax: int) -> tuple[np.ndarray, np.ndarray]:
         """qpos (nworld, hmax, nq) and qvel (nworld, hmax, nv) of the last launch, as new host arrays.
@@ -578,7 +596,7 @@ class WarpRollout:
         :meth:`RolloutPool.rollout_candidates <amhe_cli.model.rollout.RolloutPool.rollout_candidates>`;
         states come back as float32).
 
-        All clips run ``H_max`` steps in one graph launch (width is cheap on a
+        All clips run ``H_max`` steps, the captured step launched ``H_max`` times (width is cheap on a
         GPU, depth is not); rows past a clip's horizon are then replaced by its
         last state, as on the CPU. The clips' recorded starts and controls are
         uploaded once per clip set; a call uploads only the candidates'
@@ -604,14 +622,14 @@ class WarpRollout:
         s = self._slot(nworld)
         self._buffers(s, n, hmax)
         self._upload_clips(s, initial_state, control)
-        graph = self._graph(s, hmax)
+        self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
         fields = candidate_fields(space, P, self.models(B), self._raise)
         t1 = time.perf_counter()
         self._set_fields(s, fields, B)
         t2 = time.perf_counter()
-        self._launch(s, graph)
+        self._launch(s, hmax)
         self.wp.synchronize_device(self.device)
         t3 = time.perf_counter()
         qpos, qvel = self._readback(s, nworld, hmax)
