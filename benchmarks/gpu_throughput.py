@@ -22,7 +22,8 @@ Measures, each written as one flushed line to stdout and to ``$OUT/gpu_throughpu
 5. with ``--cli``, ``amhe identify LOG --device cpu|cuda`` as a user runs it, each a fresh process
    (imports, reading the log, loading the kernels from the cache included; cuda twice).
 6. with ``--mhe LOG``, ``amhe mhe-replay LOG --realtime`` on cpu (default samples) and on cuda
-   (``--mhe-samples``, 200): real-time factor and tracking error against the log's truth.
+   (``--mhe-cuda``: 200 samples × 3 iterations, 300 × 2): real-time factor and tracking error against
+   the log's truth.
 
 The last lines are the ratios ``ratio_steps_best=`` (best Warp useful steps/s over best CPU
 useful steps/s) and ``ratio_identify=`` (CPU identify wall / GPU identify wall).
@@ -99,7 +100,8 @@ def main(argv=None) -> None:
                     "user runs it (a fresh process each: imports, log reading, kernel loading from the cache)")
     ap.add_argument("--mhe", metavar="LOG", help="also run `amhe mhe-replay LOG --realtime` on cpu with the default "
                     "samples and on cuda with --mhe-samples: real-time factor and tracking error")
-    ap.add_argument("--mhe-samples", type=int, default=200)
+    ap.add_argument("--mhe-cuda", default="200x3,300x2", help="cuda settings SAMPLESxITERS to try, comma-separated "
+                    "(the CPU default is 20x3: 60 samples an update)")
     ap.add_argument("--warp-device", default=None, help="Warp device (default cuda:0, or $AMHE_WARP_DEVICE; "
                     "cpu: debug the script without a GPU)")
     a = ap.parse_args(argv)
@@ -214,15 +216,20 @@ def main(argv=None) -> None:
         for device in ("cpu", "cuda", "cuda"):
             t = time.perf_counter()
             out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "identify", a.log,
-                                  "--device", device, "--json"], capture_output=True, text=True)
+                                  "--device", device, "--json", "--force",
+                                  "--out", str(Path(a.out) / f"cli_{device}.belief.yaml")], capture_output=True, text=True)
             wall = time.perf_counter() - t
-            line = out.stdout.strip().splitlines()[-1] if out.stdout.strip() else ""
-            emit(f"cli identify --device {device}: wall_s={wall:.2f} rc={out.returncode} "
-                 f"stderr_tail={out.stderr.strip().splitlines()[-1:] if out.stderr.strip() else ''} "
-                 f"json_chars={len(line)}")
+            try:
+                est = json.loads(out.stdout)["estimate"]
+                what = " ".join(f"{k}={v:.4f}" for k, v in est.items() if isinstance(v, float))
+            except (ValueError, KeyError, TypeError):
+                what = out.stderr.strip()[-300:]
+            emit(f"cli identify --device {device}: wall_s={wall:.2f} rc={out.returncode} {what}")
     if a.mhe:
-        for device, extra in (("cpu", []), ("cuda", ["--samples", str(a.mhe_samples)])):
-            csv = Path(a.out) / f"mhe_{device}.csv"
+        variants = [("cpu", [])] + [("cuda", ["--samples", v.split("x")[0], "--iters", v.split("x")[1]])
+                                    for v in a.mhe_cuda.split(",")]
+        for device, extra in variants:
+            csv = Path(a.out) / f"mhe_{device}{'_'.join([''] + extra[1::2])}.csv"
             t = time.perf_counter()
             out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "mhe-replay", a.mhe,
                                   "--realtime", "--device", device, "--json", "--force", "--out", str(csv), *extra],

@@ -222,10 +222,14 @@ def test_noslip_and_unsupported_integrator_are_refused(scene):
     rw.check_scene(scene.model)  # the shipped scene is accepted
 
 
-def test_world_capacity_reuses_graphs():
+def test_world_capacity_reuses_slots_and_pads_at_most_a_quarter():
     assert rw.world_capacity(1) == 64
-    assert rw.world_capacity(12 * 48) == 1024
+    assert rw.world_capacity(12 * 48) == 640
     assert rw.world_capacity(1024) == 1024
+    assert rw.world_capacity(1025) == 1280
+    for n in range(1, 70000, 37):
+        cap = rw.world_capacity(n)
+        assert cap >= n and cap % 16 == 0 and (n < 64 or cap <= 1.25 * n)
 
 
 # -- on a GPU ------------------------------------------------------------------------------------
