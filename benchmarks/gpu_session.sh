@@ -15,5 +15,5 @@ python3 -m pytest -q -m gpu "$here/../tests/test_gpu_backend.py" -p no:cacheprov
 python3 "$here/gpu_throughput.py" "$const_a" --batches 16384,32768 --repeats 2 --profile --cli --mhe "$mhe_log" \
     --out "$OUT" 2>&1 | grep -v "^ *[0-9/]* *[0-9.]* *0.00[0-9] "
 if [ $# -gt 0 ]; then
-    python3 "$here/identify_accuracy.py" "$@" --seeds 8 --device cuda --out "$OUT/accuracy_cuda.jsonl" 2>&1 | tail -12
+    python3 "$here/identify_accuracy.py" "$@" --seeds 8 --jobs 2 --device cuda --out "$OUT/accuracy_cuda.jsonl" 2>&1 | tail -12
 fi
