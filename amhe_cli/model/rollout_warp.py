@@ -70,6 +70,9 @@ HOST_ONLY_FIELDS = ("dof_M0", "body_gravcomp_invweight0")
 OVERFLOW_BITS = {1: "constraint rows (njmax)", 2: "constraint Jacobian non-zeros (njmax_nnz)",
                  4: "broadphase contacts (nconmax)", 8: "narrowphase contacts (nconmax)", 16: "CCD contacts"}
 
+#: Slots (world capacities) kept at once; the least recently used is dropped beyond this.
+MAX_SLOTS = 8
+
 _G = mujoco.mjtGeom
 #: Most contacts one geom pair can make, by geom types (sorted); others: 4 (8 with a box or mesh).
 MAX_CONTACTS = {
@@ -345,7 +348,7 @@ def world_capacity(nworld: int) -> int:
 
 class _Slot:
     """The device state of one world capacity: model and data for ``cap`` worlds, the per-world field views,
-    the clip inputs and state outputs (with page-locked host twins), and the step loops captured on them."""
+    the clip inputs and state outputs (with page-locked host twins), and the step captured on them."""
 
     def __init__(self, cap: int):
         self.cap = cap
@@ -439,9 +442,11 @@ class WarpRollout:
         the graph steps every world of its slot.
         """
         cap = world_capacity(nworld)
-        if cap not in self._slots:
-            self._slots[cap] = self._allocate(cap)
-        return self._slots[cap]
+        slot = self._slots.pop(cap, None) or self._allocate(cap)
+        self._slots[cap] = slot  # most recently used last
+        while len(self._slots) > MAX_SLOTS:  # an MHE's windows vary in width: keep the device memory bounded
+            self._slots.pop(next(iter(self._slots)))
+        return slot
 
     def _allocate(self, cap: int) -> _Slot:
         """Model, data and per-world field views for ``cap`` worlds."""
