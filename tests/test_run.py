@@ -393,6 +393,37 @@ def test_approach_keeps_the_trunk_out_of_the_box_s_reach_and_pushing_does_not():
     assert cost(push, (0.45, 0.0), 500.0) == cost(push, (0.45, 0.0), 0.0)
 
 
+def test_the_waypoint_reference_moves_at_the_commanded_speed_so_a_lunge_costs_more():
+    """Walking to a far waypoint, the trunk's reference moves from where it stood at the commanded speed:
+    a trunk that surges ahead of it pays, where a fixed waypoint paid it for every centimetre gained."""
+    task = get_task("t1")
+    box = np.array([1.0, 0.0])
+    heading = task.command(np.array([1.0, 0.6]), 0.0, box, HALF_DEPTH)["yaw"]
+    cmd = task.command(np.array([1.0, 0.6]), heading, box, HALF_DEPTH)  # beside the box, facing the waypoint
+    assert cmd["phase"] == "approach" and cmd["speed"] > 0
+    start, goal = cmd["base"], cmd["waypoint"]
+    dist = np.linalg.norm(goal - start)
+    ref = task.waypoint_reference(cmd, np.array([0.0, 0.5, 100.0]))
+    np.testing.assert_allclose(ref[0], start)
+    np.testing.assert_allclose(np.linalg.norm(ref[1] - start), cmd["speed"] * 0.5)
+    np.testing.assert_allclose(ref[2], goal)  # never past the waypoint
+    assert np.linalg.norm(ref[1] - start) < dist
+
+    def cost(xy, tau, c=cmd):
+        return float(task.stage_cost(np.array([*xy, BASE_HEIGHT]), UPRIGHT, np.zeros(3), np.zeros(3),
+                                     np.array([*box, 0.19]), STAND_JOINTS, STAND_JOINTS, c, tau))
+    on_pace, surged = ref[1], start + (goal - start) / dist * min(2.5 * cmd["speed"] * 0.5, dist)
+    assert cost(on_pace, 0.5) < cost(surged, 0.5)
+    fixed = {**cmd, "base": None}  # the executed cost J: the waypoint itself, as before
+    assert cost(surged, 0.5, fixed) < cost(on_pace, 0.5, fixed)
+    # turning in place (speed 0) or recovering: held where it stands
+    np.testing.assert_allclose(task.waypoint_reference({**cmd, "speed": 0.0}, 0.5), start)
+    # the one-leg push keeps its stance point
+    t5 = get_task("t5")
+    c5 = t5.command(np.array(t5.robot_pose[:2]) + 0.05, t5.robot_pose[2], np.array(t5.box_start), HALF_DEPTH)
+    np.testing.assert_allclose(t5.waypoint_reference(c5, 0.5), c5["waypoint"])
+
+
 def test_stage_cost_penalises_a_tipped_box_not_its_yaw():
     from amhe_cli.io.quat import quat_from_rotvec
     task = get_task("t4")

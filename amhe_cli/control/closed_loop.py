@@ -467,9 +467,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             cmd_speeds.append(cmd["speed"])
             box_path.append([t, *box_xy])
             ref0 = gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"))
+            # the executed cost J measures the trunk against the waypoint itself (base None), as before the
+            # planner's moving reference (Task.waypoint_reference): its figures stay comparable
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
-                                               v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0, cmd,
-                                               box_quat=q[sc.box_qpos[3:]])))
+                                               v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0,
+                                               {**cmd, "base": None}, box_quat=q[sc.box_qpos[3:]])))
             fired = plant.execute(plan.controls, pdt, plan.compute_time, lead)
             prev_rows, prev_start = plan.controls, t + lead
             for t_ev, ev in fired:

@@ -273,7 +273,8 @@ class Task:
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
             for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
-            of its reference, ``phase`` ``"push"`` or ``"approach"``; the one-leg
+            of its reference, ``phase`` ``"push"`` or ``"approach"``, ``base`` (2,) the
+            trunk now (where :meth:`waypoint_reference` starts); the one-leg
             push adds ``reach`` (see :meth:`reach`) and ``box_yaw`` (the box's yaw now, [rad]).
         """
         half_width = half_depth if half_width is None else half_width
@@ -282,7 +283,7 @@ class Task:
         to_goal = self.goal_error(box_xy) if self.circle is None else np.inf
         slow = float(np.clip((to_goal - self.goal_tol) / self.slow_radius, 0.0, 1.0))
         box_speed = self.box_speed * max(slow, 0.1)
-        out = {"target": target, "box": box_xy.copy(), "box_speed": box_speed, "phase": "push"}
+        out = {"target": target, "box": box_xy.copy(), "box_speed": box_speed, "phase": "push", "base": base_xy.copy()}
         if self.push_side:  # T5: robot stays; box goes sideways
             d = np.subtract(self.goal, self.box_start)
             d = d / max(float(np.linalg.norm(d)), 1e-9)  # along the push, fixed in the world
@@ -410,7 +411,8 @@ class Task:
         w = self.weights
         yaw = quat_to_yaw(base_quat)
         c = self._box_term(box_pos, cmd, tau)
-        c += (w.stance if self.push_side else w.waypoint) * np.sum((base_pos[..., :2] - cmd["waypoint"]) ** 2, axis=-1)
+        c += (w.stance if self.push_side else w.waypoint) * np.sum(
+            (base_pos[..., :2] - self.waypoint_reference(cmd, tau)) ** 2, axis=-1)
         heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
         c += w.heading * (1 - np.cos(yaw - cmd["yaw"]))
         c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
@@ -428,6 +430,30 @@ class Task:
             if "box_yaw" in cmd:
                 c += w.box_yaw * (1 - np.cos(quat_to_yaw(box_quat) - cmd["box_yaw"]))
         return c
+
+    def waypoint_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
+        """(..., 2) where the trunk should be ``tau`` [s] into the horizon: from where it stood at the cycle
+        start (``cmd['base']``) toward the waypoint at the commanded speed, never past it.
+
+        A fixed waypoint paid the planner for every centimetre it gained on a far
+        waypoint: walking around the box, the trunk surged to 0.5 m/s against a
+        0.2 m/s command, pitched nose-down over its front legs and fell (T2
+        baseline, seed 0, 13.6–14.0 s, benchmarks/fall_forensics.py). The box's
+        reference moves the same way (:meth:`box_reference`). With ``speed`` 0 (turning
+        in place, recovering) the trunk is held where it stands. The one-leg
+        push's stance, and a command without ``base`` (the executed cost ``J``),
+        keep the fixed waypoint.
+        """
+        tau = np.asarray(tau, dtype=float)[..., None]
+        goal = np.asarray(cmd["waypoint"], dtype=float)
+        start = cmd.get("base")
+        if self.push_side or start is None:
+            return np.broadcast_to(goal, tau.shape[:-1] + (2,))
+        delta = goal - start
+        dist = float(np.linalg.norm(delta))
+        if dist < 1e-9:
+            return np.broadcast_to(goal, tau.shape[:-1] + (2,))
+        return start + delta / dist * np.minimum(cmd["speed"] * tau, dist)
 
     def _box_term(self, box_pos: np.ndarray, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
         """(...) ``w_box`` × squared distance of the box to its reference, per (10 cm)²."""
