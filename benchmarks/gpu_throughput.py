@@ -217,7 +217,8 @@ def main(argv=None) -> None:
             t = time.perf_counter()
             out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "identify", a.log,
                                   "--device", device, "--json", "--force",
-                                  "--out", str(Path(a.out) / f"cli_{device}.belief.yaml")], capture_output=True, text=True)
+                                  "--out", str(Path(a.out) / f"cli_{device}.belief.yaml")],
+                                 capture_output=True, text=True)
             wall = time.perf_counter() - t
             try:
                 est = json.loads(out.stdout)["estimate"]

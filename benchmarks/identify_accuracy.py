@@ -145,7 +145,8 @@ def main() -> None:
         truth = truth_of(log, given or None)
         sigma = {k: float(v) for k, _, v in (x.partition("=") for x in a.sigma)}
         smooth = a.smooth if a.smooth == "auto" else int(a.smooth)
-        jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads, "device": a.device, "params": a.params, "identify": ident, "truth": truth}
+        jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads,
+                  "device": a.device, "params": a.params, "identify": ident, "truth": truth}
                  for s in range(a.seeds)]
     rows = []
     out = open(a.out, "a") if a.out else None

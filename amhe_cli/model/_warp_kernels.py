@@ -40,7 +40,8 @@ def reset_worlds(nclip: wp.array(dtype=int), nq: int, nv: int, init: wp.array2d(
 @wp.kernel
 def set_ctrl(step: wp.array(dtype=int), nclip: wp.array(dtype=int), ctrl_in: wp.array3d(dtype=float),
              ctrl: wp.array2d(dtype=float)):
-    """ctrl[w, :] = ctrl_in[w's clip, t, :] with t = step[0]: the recorded control of step t, (N_c, H, nu) -> (nworld, nu)."""
+    """ctrl[w, :] = ctrl_in[w's clip, t, :] with t = step[0]: the recorded control of step t,
+    (N_c, H, nu) -> (nworld, nu)."""
     w, i = wp.tid()
     ctrl[w, i] = ctrl_in[w % nclip[0], step[0], i]
 
