@@ -88,6 +88,26 @@ def emulator(tmp_path, request):
             emu.stop()
 
 
+def wait_for_servo(emu, seconds: float, timeout: float = 90.0) -> None:
+    """Block until the emulator has heard servo commands for ``seconds`` (its record, read as it grows).
+
+    A fixed sleep assumed the client's start-up: on CI's loaded two cores a run
+    interrupted 5 s after it started had recorded 0.67 s.
+    """
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        try:
+            t, valid, mode = emu.rows()[:3]
+        except (ValueError, TypeError):  # a row half written
+            t = None
+        if t is not None and len(t):
+            servo = valid & (mode == SERVO).all(axis=1)
+            if servo.any() and t[servo][-1] - t[servo][0] >= seconds:
+                return
+        time.sleep(0.2)
+    raise AssertionError(f"the emulator heard no {seconds} s of servo commands within {timeout} s")
+
+
 def run_client(emu, tmp_path, *args, timeout=90):
     out = tmp_path / "go1.mcap"
     proc = subprocess.run(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
@@ -159,7 +179,7 @@ def test_ctrl_c_damps_and_keeps_the_recording(emulator, tmp_path):
     proc = subprocess.Popen(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
                                     "--threads", "1", "--out", str(out), "--arm", "--duration", "20", "-q"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(5.0)  # past the start-up and the 2 s ramp: the planner has begun
+    wait_for_servo(emu, 4.0)  # past the start-up and the 2 s ramp: the planner has run for 2 s
     t_int = time.monotonic()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)
