@@ -30,7 +30,7 @@ useful steps/s) and ``ratio_identify=`` (CPU identify wall / GPU identify wall).
 
 Usage::
 
-    python benchmarks/gpu_throughput.py LOG [--clips 48] [--batches 256,1024,4096,16384] [--repeats 3] [--profile] [--cli]
+    python benchmarks/gpu_throughput.py LOG [--clips 48] [--batches 256,1024,4096,16384] [--repeats 3] [--profile] [--cli] [--mhe LOG]
 """
 
 from __future__ import annotations
@@ -70,6 +70,10 @@ def emit(line: str) -> None:
     if _sink is not None:
         _sink.write(line + "\n")
         _sink.flush()
+
+
+#: the CLI as a user runs it, in a fresh process
+AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 
 
 def phases(timing: dict) -> str:
@@ -215,9 +219,8 @@ def main(argv=None) -> None:
     if a.cli:
         for device in ("cpu", "cuda", "cuda"):
             t = time.perf_counter()
-            out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "identify", a.log,
-                                  "--device", device, "--json", "--force",
-                                  "--out", str(Path(a.out) / f"cli_{device}.belief.yaml")],
+            out = subprocess.run(AMHE + ["identify", a.log, "--device", device, "--json", "--force",
+                                         "--out", str(Path(a.out) / f"cli_{device}.belief.yaml")],
                                  capture_output=True, text=True)
             wall = time.perf_counter() - t
             try:
@@ -232,9 +235,8 @@ def main(argv=None) -> None:
         for device, extra in variants:
             csv = Path(a.out) / f"mhe_{device}{'_'.join([''] + extra[1::2])}.csv"
             t = time.perf_counter()
-            out = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "mhe-replay", a.mhe,
-                                  "--realtime", "--device", device, "--json", "--force", "--out", str(csv), *extra],
-                                 capture_output=True, text=True)
+            out = subprocess.run(AMHE + ["mhe-replay", a.mhe, "--realtime", "--device", device, "--json", "--force",
+                                         "--out", str(csv), *extra], capture_output=True, text=True)
             wall = time.perf_counter() - t
             try:
                 r = json.loads(out.stdout.strip().splitlines()[-1])

@@ -420,12 +420,11 @@ class WarpRollout:
         self.close()
 
     def close(self) -> None:
-        """Drop the device buffers and graphs."""
+        """Drop the device buffers and graphs (a later call allocates them again)."""
         self._slots.clear()
 
-    def _reset(self) -> None:
-        """Drop every slot, so the next call allocates with the current buffer sizes."""
-        self._slots.clear()
+    #: drop every slot, so the next call allocates with the current buffer sizes
+    _reset = close
 
     def models(self, n: int) -> list[mujoco.MjModel]:
         """``n`` host model copies to write candidates into (created once, reused)."""
