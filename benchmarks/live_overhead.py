@@ -14,9 +14,12 @@ Trials alternate off/live ``--trials`` times each (the emulator and a fresh plan
 Per trial: the relay's command period p99 [ms] (``Relay.periods``, the whole run), the planner's
 rate [Hz] (cycles per wall-clock second) and, live, the CPU time of the server's sending thread per
 second of run; per condition the medians; last line
-``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used.
+``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used. ``--pin`` (Linux) puts this process (relay, planner, live server) on the
+first half of the cores and the emulator and the viewer on the other half, as a robot and a viewer's
+machine would be: what is left is the view's own cost to the loop, not the robot's or the viewer's
+process waking on the loop's cores. ``--out`` appends each trial as a JSON line as it finishes.
 
-    python benchmarks/live_overhead.py [--trials 3] [--duration 10] [--threads N]
+    python benchmarks/live_overhead.py [--trials 3] [--duration 10] [--threads N] [--pin] [--out rows.jsonl]
 """
 
 from __future__ import annotations
@@ -77,6 +80,15 @@ def viewer(url: str, seconds: float) -> None:
     asyncio.run(go())
 
 
+def _pin_to_halves():
+    """Pin this process to the first half of its cores; return a ``preexec_fn`` pinning a child to the rest."""
+    cores = sorted(os.sched_getaffinity(0))
+    half = max(1, len(cores) // 2)
+    mine, rest = set(cores[:half]), set(cores[half:]) or set(cores)
+    os.sched_setaffinity(0, mine)
+    return lambda: os.sched_setaffinity(0, rest)
+
+
 def trial(live: bool, args) -> dict:
     from amhe_cli.cli.common import task_view_frames
     from amhe_cli.control.closed_loop import RUN_PARAMS, run_task, task_scene_config
@@ -91,9 +103,10 @@ def trial(live: bool, args) -> dict:
 
     task, settings = run_settings("t1", "baseline", {}, realtime=True, threads=args.threads, duration=args.duration)
     pose = free_port()
+    others = _pin_to_halves() if args.pin else None
     emu = subprocess.Popen(AMHE + ["emulate", "go1", "--task", "t1", "--port", "0", "--pose-to", f"127.0.0.1:{pose}",
                                    "--duration", str(args.duration + 30)],
-                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, preexec_fn=others)
     server = client = None
     try:
         port = int(emu.stdout.readline().split("udp://127.0.0.1:")[1].split(",")[0])
@@ -104,7 +117,8 @@ def trial(live: bool, args) -> dict:
         if live:
             server = LiveServer(frames, "127.0.0.1", free_port(socket.SOCK_STREAM)).start()
             client = subprocess.Popen([sys.executable, __file__, "--viewer", server.address,
-                                       str(args.duration + 30)], stdout=subprocess.PIPE, text=True)
+                                       str(args.duration + 30)], stdout=subprocess.PIPE, text=True,
+                                      preexec_fn=others)
             time.sleep(1.0)  # the viewer connects and subscribes before the run starts
         m = plant.start()
         sc = scene
@@ -140,12 +154,19 @@ def main() -> None:
     ap.add_argument("--trials", type=int, default=3)
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--threads", type=int, default=None)
+    ap.add_argument("--pin", action="store_true", help="loop on the first half of the cores, emulator and viewer "
+                                                         "on the other (Linux)")
+    ap.add_argument("--out", default=None, help="JSON-lines file each trial is appended to as it finishes")
     args = ap.parse_args()
+    out = open(args.out, "a") if args.out else None
     rows = []
     for k in range(args.trials):
         for live in (False, True):
             r = trial(live, args)
             rows.append(r)
+            if out:
+                out.write(json.dumps({"trial": k, "pin": args.pin, **r}) + "\n")
+                out.flush()
             print(f"trial {k} {'live' if live else 'off '}: relay period median {r['median_ms']:.2f} ms, "
                   f"p99 {r['p99_ms']:.2f} ms; planner {r['planner_hz']:.1f} Hz ({r['cycles']} cycles, compute "
                   f"{r['compute_ms']:.0f} ms median)" + (f"; sent {r['sent']}, dropped {r['dropped']}, live thread CPU "
