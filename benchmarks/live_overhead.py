@@ -14,10 +14,12 @@ Trials alternate off/live ``--trials`` times each (the emulator and a fresh plan
 Per trial: the relay's command period p99 [ms] (``Relay.periods``, the whole run), the planner's
 rate [Hz] (cycles per wall-clock second) and, live, the CPU time of the server's sending thread per
 second of run; per condition the medians; last line
-``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used. ``--pin`` (Linux) puts this process (relay, planner, live server) on the
-first half of the cores and the emulator and the viewer on the other half, as a robot and a viewer's
-machine would be: what is left is the view's own cost to the loop, not the robot's or the viewer's
-process waking on the loop's cores. ``--out`` appends each trial as a JSON line as it finishes.
+``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used.
+
+``--pin`` (Linux) puts this process (relay, planner, live server) on the first half of the cores and
+the emulator and the viewer on the other half, as a robot and a viewer's machine would be: what is
+left is the view's own cost to the loop, not the robot's or the viewer's process waking on the
+loop's cores. ``--out`` appends each trial as a JSON line as it finishes.
 
     python benchmarks/live_overhead.py [--trials 3] [--duration 10] [--threads N] [--pin] [--out rows.jsonl]
 """

@@ -35,7 +35,7 @@ _GAP_FACTOR = 1.5
 #: four dropped frames at 500 Hz, where the rule in periods alone left 189 of 9,900 0.2 s clip starts
 #: without a gap on a log with 2 % of its pose frames dropped (0.98¹⁰⁰ of them, 13 %) and
 #: ``identify`` read a 3.5 kg box as 0.2 kg. A dropped 120 Hz frame (16.7 ms) stays a gap: filling
-#: it (20 ms) was measured worse on ``noisy_b`` (mass +8.0 ± 4.2 % against +4.0 ± 3.7 %, 8 seeds).
+#: it (20 ms) was measured worse on ``noisy_b`` (mass +8.0 ± 4.2 % against +4.0 ± 3.5 %, 8 seeds).
 FILL_GAP_S = 0.010
 
 
