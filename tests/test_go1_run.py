@@ -120,6 +120,28 @@ def wait_for_servo(emu, seconds: float, client: subprocess.Popen, timeout: float
                          f"the client said:\n{err[-3000:]}")
 
 
+def stall_retries(emulator, tmp_path, *args, tries: int = 3):
+    """Fresh emulators started with ``args``, each with its own folder: yields (emulator, folder) up to
+    ``tries`` times, until the test breaks out; fails the test when every try was spent.
+
+    A busy machine can hold the emulator itself up past the client's 40 ms state watchdog: the client
+    then rightly damps early and that run cannot show what the test checks. The test tries again only
+    a run :func:`assert_stalled` finds so ended.
+    """
+    for attempt in range(tries):
+        where = tmp_path / f"try{attempt}"
+        where.mkdir()
+        emu = emulator(*args, where=where)
+        yield emu, where
+    pytest.fail(f"the emulator stalled past the watchdog in all {tries} runs:\n{emu.summary}")
+
+
+def assert_stalled(emu, why: str, said: str) -> None:
+    """The run was spoiled by the emulator's own stall: its longest state gap passed the client's watchdog."""
+    assert emu.longest_gap() > SafetySettings().state_timeout, \
+        f"{why} with no stall of the state stream; the client said:\n{said}"
+
+
 def run_client(emu, tmp_path, *args, timeout=90):
     out = tmp_path / "go1.mcap"
     proc = subprocess.run(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
@@ -139,13 +161,8 @@ def first_valid_time(t, valid):
 
 @pytest.mark.parametrize("fault", ["link-loss", "corrupt"])
 def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, fault):
-    # A busy machine can hold the emulator itself up past the client's 40 ms state watchdog before the
-    # fault: the client then rightly damps early and this run cannot show the fault. Such a run is
-    # told by the emulator's own longest state gap, and only such a run is tried again.
-    for attempt in range(3):
-        where = tmp_path / f"try{attempt}"
-        where.mkdir()
-        emu = emulator("--fault", f"{fault}@4.5", where=where)
+    # only a run that the emulator's own stall ended before the fault is tried again (stall_retries)
+    for emu, where in stall_retries(emulator, tmp_path, "--fault", f"{fault}@4.5"):
         proc, out = run_client(emu, where, "--arm", "--duration", "20")
         emu.stop()
         t, valid, mode, q, kp, kd = emu.rows()
@@ -154,10 +171,7 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
         early = valid & (t < t_loss) & (t > t[np.argmax(servo)]) & damped(mode, kp, kd)
         if not early.any():
             break
-        assert emu.longest_gap() > SafetySettings().state_timeout, f"damped {t_loss - t[early][0]:.3f} s before the fault with no stall " \
-                                         f"of the state stream; the client said:\n{proc.stderr}"
-    else:
-        pytest.fail(f"the emulator stalled past the watchdog in all 3 runs:\n{emu.summary}")
+        assert_stalled(emu, f"damped {t_loss - t[early][0]:.3f} s before the fault", proc.stderr)
     assert proc.returncode == 2, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "no valid robot state" in errors[0] and "Traceback" not in proc.stderr
@@ -174,18 +188,12 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
 
 def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
     # As above: only a run that the emulator's own stall ended before the freeze is tried again.
-    for attempt in range(3):
-        where = tmp_path / f"try{attempt}"
-        where.mkdir()
-        emu = emulator("--fault", "mocap-freeze@4.5", where=where)
+    for emu, where in stall_retries(emulator, tmp_path, "--fault", "mocap-freeze@4.5"):
         proc, out = run_client(emu, where, "--arm", "--duration", "5", "-q")
         emu.stop()
         if "no valid robot state" not in proc.stderr:
             break
-        assert emu.longest_gap() > SafetySettings().state_timeout, \
-            f"the run damped with no stall of the state stream; the client said:\n{proc.stderr}"
-    else:
-        pytest.fail(f"the emulator stalled past the watchdog in all 3 runs:\n{emu.summary}")
+        assert_stalled(emu, "the run damped", proc.stderr)
     assert "motion capture stale: holding the stand" in proc.stderr
     t, valid, mode, q, kp, kd = emu.rows()
     t_freeze = first_valid_time(t, valid) + 4.5
@@ -199,10 +207,7 @@ def test_ctrl_c_damps_and_keeps_the_recording(emulator, tmp_path):
     # As above: a busy machine can stall the emulator past the client's state watchdog, and the client then
     # rightly damps and ends before it can be interrupted. Only such a run, told by the emulator's own
     # longest state gap, is tried again.
-    for attempt in range(3):
-        where = tmp_path / f"try{attempt}"
-        where.mkdir()
-        emu = emulator(where=where)
+    for emu, where in stall_retries(emulator, tmp_path):
         out = where / "go1.mcap"
         proc = subprocess.Popen(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode",
                                         "baseline", "--threads", "1", "--out", str(out), "--arm", "--duration", "20",
@@ -211,10 +216,8 @@ def test_ctrl_c_damps_and_keeps_the_recording(emulator, tmp_path):
             break
         _, err = proc.communicate(timeout=30)
         emu.stop()
-        assert "no valid robot state" in err and emu.longest_gap() > SafetySettings().state_timeout, \
-            f"the run ended before it could be interrupted, with no stall of the state stream:\n{err}"
-    else:
-        pytest.fail(f"the emulator stalled past the watchdog in all 3 runs:\n{emu.summary}")
+        assert "no valid robot state" in err, f"the run ended before it could be interrupted:\n{err}"
+        assert_stalled(emu, "the run ended before it could be interrupted", err)
     t_int = time.monotonic()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=30)

@@ -269,14 +269,14 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
     with rw.WarpRollout(scene.model) as w, RolloutPool(scene.model, 1) as pool:  # chosen sizes: grow, repeat
         w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
         w.nconmax, w.njmax = 2, 16
-        w._reset()
+        w.close()
         qg, _, _ = w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
         qc, _, _ = pool.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control,
                                            clips.horizon)
         assert w.njmax > 16 and "growing" in capsys.readouterr().err
         assert np.median(np.abs(qg - qc)[..., scene.box_qpos[:2]]) < 1e-5
         w.bound = w.nconmax, w.njmax = (2, 16)  # at the bound: the overflowed worlds read as diverged
-        w._reset()
+        w.close()
         with RolloutCost(scene, space, clips, pool=w) as cost:
             br = cost.evaluate(space.mean0[None])
         assert br.diverged.any() and "count as diverged" in capsys.readouterr().err

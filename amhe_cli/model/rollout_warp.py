@@ -423,9 +423,6 @@ class WarpRollout:
         """Drop the device buffers and graphs (a later call allocates them again)."""
         self._slots.clear()
 
-    #: drop every slot, so the next call allocates with the current buffer sizes
-    _reset = close
-
     def models(self, n: int) -> list[mujoco.MjModel]:
         """``n`` host model copies to write candidates into (created once, reused)."""
         while len(self._models) < n:
@@ -671,7 +668,7 @@ class WarpRollout:
             self.nconmax, self.njmax = (min(self.bound[0], 2 * self.nconmax), min(self.bound[1], 2 * self.njmax))
             print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
                   f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
-            self._reset()
+            self.close()  # every slot again, with the grown buffer sizes
             return self.rollout_candidates(space, P, initial_state, control, horizon)
         for k, h in enumerate(np.asarray(horizon, dtype=int)):
             qpos[:, k, h:] = qpos[:, k, h - 1:h]
