@@ -12,7 +12,8 @@ relay ramps to the stand, then follows plans) and runs T1 in baseline mode throu
 
 Trials alternate off/live ``--trials`` times each (the emulator and a fresh plant per trial).
 Per trial: the relay's command period p99 [ms] (``Relay.periods``, the whole run), the planner's
-rate [Hz] (cycles per wall-clock second) and, live, the CPU time of the server's sending thread per
+rate [Hz] (cycles per wall-clock second) and, live, the CPU time of the server's process (converting,
+encoding, sending; off the control process since the server moved to a process of its own) per
 second of run; per condition the medians; last line
 ``relay_p99_ratio=… planner_rate_ratio=…`` (live ÷ off). Only 127.0.0.1 is used.
 
@@ -171,7 +172,7 @@ def main() -> None:
                 out.flush()
             print(f"trial {k} {'live' if live else 'off '}: relay period median {r['median_ms']:.2f} ms, "
                   f"p99 {r['p99_ms']:.2f} ms; planner {r['planner_hz']:.1f} Hz ({r['cycles']} cycles, compute "
-                  f"{r['compute_ms']:.0f} ms median)" + (f"; sent {r['sent']}, dropped {r['dropped']}, live thread CPU "
+                  f"{r['compute_ms']:.0f} ms median)" + (f"; sent {r['sent']}, dropped {r['dropped']}, live process CPU "
                                                         f"{r['live_cpu_ms_per_s']:.1f} ms/s; {r['viewer']}"
                                                        if live else "")
                   + (f"; run stopped: {r['failure']}" if r["failure"] else ""), flush=True)

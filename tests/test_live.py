@@ -127,6 +127,34 @@ def test_live_bad_address_and_busy_port_are_one_line_errors(tmp_path):
     assert not (tmp_path / "e.csv").exists()
 
 
+def test_the_server_runs_in_its_own_process_and_a_dead_one_never_blocks_the_loop():
+    """The view's work is off the control process; when its process dies, offer drops, never waits."""
+    import os
+    import time
+
+    from amhe_cli.io.live import QUEUE, LiveServer
+    from amhe_cli.io.view import Event, ViewFrames
+    from amhe_cli.model.scene import Scene
+    scene = Scene()
+    server = LiveServer(ViewFrames(scene.model), "127.0.0.1", 0).start()
+    try:
+        assert server._proc.pid != os.getpid() and server._proc.is_alive() and server.port > 0
+        ev = Event("state", 0.0, (scene.model.qpos0.copy(),))
+        server._proc.kill()
+        server._proc.join(5)
+        t0 = time.perf_counter()
+        for _ in range(QUEUE + 200):
+            server.offer(ev)
+        assert time.perf_counter() - t0 < 1.0
+        assert server.dropped >= 200
+    finally:
+        t0 = time.perf_counter()
+        server.close()
+        assert time.perf_counter() - t0 < 5.0
+    server.offer(ev)  # after close: dropped, no error
+    assert server.dropped >= 201
+
+
 def test_live_layout_prints_the_shipped_layout_built_from_the_sdk(tmp_path):
     import json
     from amhe_cli.io.live import build_layout

@@ -104,7 +104,7 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
                         "use --mode adaptive or baseline")
     # the view: recorded into the MCAP always, streamed to Foxglove with --live; the server starts
     # before the plant or the probe (a busy port costs nothing) and stops whatever happens
-    from amhe_cli.io.view import View, ViewFrames, ViewRecorder
+    from amhe_cli.io.view import Event, View, ViewFrames, ViewRecorder
     frames = task_view_frames(task, settings.kp, settings.kd, floor=target == "sim")
     server = start_live(live, frames)
     recorder = ViewRecorder()
@@ -113,7 +113,9 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
         if target == "go1":
             plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
                                             goal_xy, arm, quiet or as_json)
-            frames.goal = tuple(task.goal)  # placed where the robot and the box stand
+            frames.goal = tuple(task.goal)  # placed where the robot and the box stand (the recording's scene)
+            if server is not None:  # the live server's own copy of the frames
+                server.offer(Event("goal", 0.0, frames.goal))
         elif probing:
             if talk:
                 click.echo("no --belief: probing first, as `amhe probe --target sim` does with the task's box: the "

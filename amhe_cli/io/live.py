@@ -7,15 +7,20 @@ protocol (subprotocols ``foxglove.sdk.v1`` / ``foxglove.websocket.v1``). Each vi
 what a recording holds, so a layout works on both.
 
 Off the control path: hooks hand :class:`~amhe_cli.io.view.Event` s to :meth:`LiveServer.offer`,
-which only appends to bounded queues (a full queue drops the oldest frame: frames are dropped, never
-delayed, and nothing blocks). One thread of its own converts and sends; it does no work for a topic
-nobody subscribed to. The SDK's own per-client backlog drops the oldest message for a slow viewer.
+which only puts them on a bounded queue to the server's own process (a full queue drops the event:
+frames are dropped, never delayed, and nothing blocks). That process converts, encodes and sends,
+so none of it holds the control process's interpreter lock; it keeps bounded queues of its own (the
+oldest frame dropped first) and does no work for a topic nobody subscribed to. The SDK's own
+per-client backlog drops the oldest message for a slow viewer.
 """
 
 from __future__ import annotations
 
 import collections
-import threading
+import multiprocessing
+import os
+import queue
+import signal
 import time
 from importlib import resources
 
@@ -26,6 +31,10 @@ from amhe_cli.io.view import VIEW_TOPICS, Event, ViewFrames, encoder, msgdef
 DEFAULT_PORT = 8765
 #: Default host: loopback only; ``--live 0.0.0.0:8765`` opens it to the network.
 DEFAULT_HOST = "127.0.0.1"
+#: Largest number of events in flight to the server's process (more are dropped, never waited for).
+QUEUE = 512
+#: Longest wait for the server's process to start and listen [s] (it imports mujoco and the SDK).
+START_TIMEOUT = 30.0
 #: Largest number of robot-state frames waiting to be sent (older ones are dropped first).
 STATE_QUEUE = 64
 #: Largest number of other events (plans, beliefs, logs) waiting; the oldest are dropped first.
@@ -73,73 +82,69 @@ def layout_text() -> str:
 
 
 class LiveServer:
-    """A Foxglove WebSocket server streaming a view; a context manager.
+    """A Foxglove WebSocket server streaming a view, in a process of its own; a context manager.
 
     Protocol: the Foxglove WebSocket protocol of the official SDK (``foxglove.start_server`` on a
     :class:`foxglove.Context` of its own): one channel per :data:`~amhe_cli.io.view.VIEW_TOPICS`
     topic, ``ros2msg`` schema, ``cdr`` messages, log time = the event's log time [ns].
 
+    Off the control path: the server, the conversion of events into messages and their CDR encoding
+    (pure Python, about 0.5 ms per robot-state frame) run in a child process (``spawn``), so they
+    never hold the control process's interpreter lock. :meth:`offer` only hands the event to a
+    bounded inter-process queue (pickled by the queue's feeder thread, about 20 µs); when the queue
+    is full (the child is stuck or gone) the event is dropped, never waited for.
+
     Args:
-        frames: converts events into messages (owned by the server's thread from :meth:`start` on).
+        frames: converts events into messages (a copy goes to the server's process at :meth:`start`;
+            later changes reach it only as events, e.g. ``Event("goal", t, (x, y))``).
         host, port: where to listen (port 0: any free port; :attr:`port` says which).
         name: the server's name as Foxglove shows it.
 
     Raises:
-        AmheError: the SDK is missing, or the server cannot listen (a busy port, a bad host).
+        AmheError: the SDK is missing, or the server cannot listen (a busy port, a bad host), or its
+            process did not start within :data:`START_TIMEOUT` s.
 
-    Attributes:
+    Attributes (read from the server's process while it runs):
         sent: messages sent; dropped: events dropped because a queue was full.
-        cpu_s: CPU time the sending thread used so far [s] (converting and handing messages to the
-            SDK; the SDK's own network threads are not counted).
+        cpu_s: CPU time the server's process used so far [s] (converting, encoding, the SDK's
+            network threads), none of it on the control process.
     """
 
     def __init__(self, frames: ViewFrames, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, name: str = "amhe"):
         self.frames = frames
         self.host, self.port, self.name = host, port, name
-        self.sent = 0
-        self.dropped = 0
-        self.cpu_s = 0.0
-        self._states: collections.deque = collections.deque(maxlen=STATE_QUEUE)
-        self._events: collections.deque = collections.deque(maxlen=EVENT_QUEUE)
-        self._wake = threading.Event()
-        self._stop = threading.Event()
-        self._scene_due = 0.0
-        self._thread: threading.Thread | None = None
-        self._server = None
-        self._channels: dict = {}
-        self._encoders = {}
-        self._last_t = 0.0
-        self._latched: dict[str, Event] = {}
+        self._proc = None
+        self._queue = None
+        self._stats = None
+        self._dropped_here = 0
 
     # -- lifetime -------------------------------------------------------------------------------------------
     def start(self) -> "LiveServer":
-        """Listen and start the sending thread.
+        """Start the server's process and wait until it listens.
 
         Raises:
-            AmheError: the SDK is missing or the address cannot be bound.
+            AmheError: the SDK is missing, the address cannot be bound, or the process did not start.
         """
-        fg = require_sdk()
-        self._ctx = fg.Context()
-        server = self
-
-        class _Listener(fg.websocket.ServerListener):
-            def on_subscribe(self, client, channel):  # a new viewer: send the scene again soon
-                server._scene_due = 0.0
-                server._wake.set()
-
+        require_sdk()
+        ctx = multiprocessing.get_context("spawn")  # never fork a process that runs control threads
+        self._queue = ctx.Queue(maxsize=QUEUE)
+        self._stats = ctx.Array("d", 3, lock=False)  # sent, dropped, cpu_s
+        ready, child_end = ctx.Pipe(duplex=False)
+        self._proc = ctx.Process(target=_serve, name="amhe-live", daemon=True,
+                                 args=(self.frames, self.host, self.port, self.name, self._queue, child_end,
+                                       self._stats, os.getpid()))
+        self._proc.start()
+        child_end.close()
         try:
-            self._server = fg.start_server(name=self.name, host=self.host, port=self.port, context=self._ctx,
-                                           server_listener=_Listener())
-        except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError variants for a busy port
-            why = " ".join(str(exc).split())
-            raise AmheError(f"--live {self.host}:{self.port}: cannot listen there ({why})") from None
-        self.port = self._server.port
-        for topic, msgtype in VIEW_TOPICS.items():
-            schema = fg.Schema(name=msgtype, encoding="ros2msg", data=msgdef(msgtype).encode())
-            self._channels[topic] = fg.Channel(topic, schema=schema, message_encoding="cdr", context=self._ctx)
-            self._encoders[topic] = encoder(msgtype)
-        self._thread = threading.Thread(target=self._loop, name="amhe-live", daemon=True)
-        self._thread.start()
+            reply = ready.recv() if ready.poll(START_TIMEOUT) else ("error", f"no answer in {START_TIMEOUT:g} s")
+        except EOFError:
+            reply = ("error", f"the server's process ended (exit code {self._proc.exitcode})")
+        finally:
+            ready.close()
+        if reply[0] != "ok":
+            self._kill()
+            raise AmheError(f"--live {self.host}:{self.port}: cannot listen there ({reply[1]})")
+        self.port = reply[1]
         return self
 
     @property
@@ -147,72 +152,177 @@ class LiveServer:
         """``ws://HOST:PORT`` to open in Foxglove."""
         return f"ws://{self.host}:{self.port}"
 
+    @property
+    def sent(self) -> int:
+        return int(self._stats[0]) if self._stats is not None else 0
+
+    @property
+    def dropped(self) -> int:
+        return self._dropped_here + (int(self._stats[1]) if self._stats is not None else 0)
+
+    @property
+    def cpu_s(self) -> float:
+        return float(self._stats[2]) if self._stats is not None else 0.0
+
     def close(self) -> None:
-        """Send what is queued (up to 1 s), stop the thread and the server. Safe to call twice."""
-        if self._thread is not None:
-            self._stop.set()
-            self._wake.set()
-            self._thread.join(timeout=2.0)
-            self._thread = None
-        if self._server is not None:
-            self._server.stop()
-            self._server = None
+        """Let the server send what is queued (up to 1 s), then stop its process. Safe to call twice."""
+        if self._proc is None:
+            return
+        try:
+            self._queue.put(None, timeout=1.0)
+        except (queue.Full, ValueError, OSError):
+            pass
+        self._proc.join(timeout=3.0)
+        self._kill()
+
+    def _kill(self) -> None:
+        if self._proc is not None and self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=2.0)
+        self._proc = None
+        if self._queue is not None:
+            self._queue.cancel_join_thread()  # exiting never waits on a queue nobody reads
+            self._queue.close()
 
     def __enter__(self) -> "LiveServer":
-        return self.start() if self._server is None else self
+        return self.start() if self._proc is None else self
 
     def __exit__(self, *exc) -> None:
         self.close()
 
     # -- the hooks' side: never blocks ----------------------------------------------------------------------
     def offer(self, ev: Event) -> None:
-        """Queue ``ev`` for sending; a full queue drops its oldest entry (counted in :attr:`dropped`)."""
-        q = self._states if ev.kind == "state" else self._events
+        """Hand ``ev`` to the server's process; a full queue (or a server already closed) drops it
+        (counted in :attr:`dropped`)."""
+        if self._proc is None:
+            self._dropped_here += 1
+            return
+        try:
+            self._queue.put_nowait(ev)
+        except (queue.Full, ValueError, OSError):
+            self._dropped_here += 1
+
+
+def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox, ready, stats, parent: int) -> None:
+    """The server's process: listen, answer ``ready`` with ("ok", port) or ("error", why), then send
+    what ``inbox`` brings until it brings None (draining up to 1 s) or the parent process is gone."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it stops us
+    sender = _Sender(frames, stats)
+    try:
+        sender.listen(host, port, name)
+    except Exception as exc:  # noqa: BLE001 - the SDK raises RuntimeError/OSError variants for a busy port
+        ready.send(("error", " ".join(str(exc).split())))
+        return
+    ready.send(("ok", sender.port))
+    ready.close()
+    try:
+        sender.run(inbox, parent)
+    finally:
+        sender.stop()
+
+
+class _Sender:
+    """Inside the server's process: bounded queues of events, converted and sent in order; robot-state
+    frames wait until their ``due`` time (paced playback); the scene and the :data:`LATCHED` kinds are
+    re-sent every :data:`SCENE_PERIOD` s and when a viewer subscribes; nothing is converted for a topic
+    nobody subscribed to."""
+
+    def __init__(self, frames: ViewFrames, stats):
+        self.frames, self.stats = frames, stats
+        self.sent = self.dropped = 0
+        self.states: collections.deque = collections.deque(maxlen=STATE_QUEUE)
+        self.events: collections.deque = collections.deque(maxlen=EVENT_QUEUE)
+        self.scene_due = 0.0
+        self.last_t = 0.0
+        self.latched: dict[str, Event] = {}
+        self.channels: dict = {}
+        self.encoders: dict = {}
+        self.server = None
+        self.port = None
+
+    def listen(self, host: str, port: int, name: str) -> None:
+        fg = require_sdk()
+        self.ctx = ctx = fg.Context()  # kept: the channels live only as long as their context
+        sender = self
+
+        class _Listener(fg.websocket.ServerListener):
+            def on_subscribe(self, client, channel):  # a new viewer: send the scene again now
+                sender.scene_due = 0.0
+
+        self.server = fg.start_server(name=name, host=host, port=port, context=ctx, server_listener=_Listener())
+        self.port = self.server.port
+        for topic, msgtype in VIEW_TOPICS.items():
+            schema = fg.Schema(name=msgtype, encoding="ros2msg", data=msgdef(msgtype).encode())
+            self.channels[topic] = fg.Channel(topic, schema=schema, message_encoding="cdr", context=ctx)
+            self.encoders[topic] = encoder(msgtype)
+
+    def stop(self) -> None:
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def _take(self, ev: Event | None) -> bool:
+        """Queue one event from the inbox; False for the end (None)."""
+        if ev is None:
+            return False
+        if ev.kind == "goal":  # the scene changes: re-send it now
+            self.frames.convert(ev)
+            self.scene_due = 0.0
+            return True
+        q = self.states if ev.kind == "state" else self.events
         if len(q) == q.maxlen:
             self.dropped += 1
         q.append(ev)
-        self._wake.set()
+        return True
 
-    # -- the sending thread ---------------------------------------------------------------------------------
+    def run(self, inbox, parent: int) -> None:
+        draining_until = None
+        wait = 0.0
+        while True:
+            try:  # block for the first event (at most ``wait``), then take all that are there
+                if not self._take(inbox.get(timeout=wait) if wait > 0 else inbox.get_nowait()):
+                    draining_until = draining_until or time.monotonic() + 1.0
+                while draining_until is None:
+                    if not self._take(inbox.get_nowait()):
+                        draining_until = time.monotonic() + 1.0
+            except queue.Empty:
+                pass
+            except (EOFError, OSError):  # the parent is gone
+                return
+            now = time.monotonic()
+            self.stats[0], self.stats[1], self.stats[2] = self.sent, self.dropped, time.process_time()
+            if draining_until is not None and (now >= draining_until or not (self.events or self.states)):
+                return
+            if os.getppid() != parent:
+                return
+            if now >= self.scene_due:  # periodically, and at once for a new subscriber
+                self.scene_due = now + SCENE_PERIOD
+                self._safe(Event("scene", self.last_t, ()))
+                for ev in list(self.latched.values()):
+                    self._safe(ev)
+            while self.events:
+                self._safe(self.events.popleft())
+            wait = 0.05
+            while self.states:
+                ev = self.states[0]
+                if ev.due > now and draining_until is None:
+                    wait = min(wait, ev.due - now)
+                    break
+                self._safe(self.states.popleft())
+            if draining_until is not None:
+                wait = 0.0
+
     def _send(self, ev: Event) -> None:
-        self._last_t = max(self._last_t, ev.t)
+        self.last_t = max(self.last_t, ev.t)
         if ev.kind in LATCHED:
-            self._latched[ev.kind] = ev
-        wanted = [t for t in _TOPICS_OF.get(ev.kind, ()) if self._channels[t].has_sinks()]
+            self.latched[ev.kind] = ev
+        wanted = [t for t in _TOPICS_OF.get(ev.kind, ()) if self.channels[t].has_sinks()]
         if not wanted:
             return
         for topic, ns, msg in self.frames.convert(ev):
             if topic in wanted:
-                self._channels[topic].log(self._encoders[topic](msg), log_time=ns)
+                self.channels[topic].log(self.encoders[topic](msg), log_time=ns)
                 self.sent += 1
-
-    def _loop(self) -> None:
-        draining_until = None
-        cpu0 = time.thread_time()
-        while True:
-            now = time.monotonic()
-            self.cpu_s = time.thread_time() - cpu0
-            if self._stop.is_set():
-                if draining_until is None:
-                    draining_until = now + 1.0
-                if now >= draining_until or not (self._events or self._states):
-                    return
-            if now >= self._scene_due:  # periodically, and at once for a new subscriber
-                self._scene_due = now + SCENE_PERIOD
-                self._safe(Event("scene", self._last_t, ()))
-                for ev in list(self._latched.values()):
-                    self._safe(ev)
-            while self._events:
-                self._safe(self._events.popleft())
-            wait = 0.05
-            while self._states:
-                ev = self._states[0]
-                if ev.due > now and not self._stop.is_set():
-                    wait = min(wait, ev.due - now)
-                    break
-                self._safe(self._states.popleft())
-            self._wake.wait(wait)
-            self._wake.clear()
 
     def _safe(self, ev: Event) -> None:
         try:

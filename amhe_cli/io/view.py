@@ -193,7 +193,8 @@ class Event:
 
     Attributes:
         kind: ``state`` (qpos), ``plan`` (trunk (H, 3), box (H, 3) paths [m], compute [s], lead [s]),
-            ``belief`` (labels, values (K,)), ``safety`` (labels, values), ``log`` (level, text).
+            ``belief`` (labels, values (K,)), ``safety`` (labels, values), ``log`` (level, text),
+            ``goal`` ((x, y) [m]: the goal moved; no message of its own, the next scene shows it).
         t: log time [s].
         data: the kind's payload (see above).
         due: ``time.monotonic()`` before which a live server should not send it (paced playback).
@@ -228,6 +229,13 @@ class ViewFrames:
         self.goal = None if goal is None else (float(goal[0]), float(goal[1]))
         self.t0 = float(t0)
         self.bodies = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) or f"body{b}" for b in range(model.nbody)]
+
+    def __getstate__(self) -> dict:
+        """Pickled (for the live server's process) as its model and settings; the MjData is rebuilt."""
+        return {"model": self.model, "regions": self.regions, "goal": self.goal, "t0": self.t0}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["model"], state["regions"], state["goal"], state["t0"])
 
     def ns(self, t: float) -> int:
         """Log time [ns] of event time ``t`` [s]."""
@@ -343,6 +351,9 @@ class ViewFrames:
             return [("/amhe/safety", ns, self.array(*ev.data))]
         if ev.kind == "log":
             return [("/amhe/log", ns, self.log(ev.t, *ev.data))]
+        if ev.kind == "goal":  # the goal moved (placed where the robot stands): the next scene shows it
+            self.goal = (float(ev.data[0]), float(ev.data[1]))
+            return []
         raise ValueError(f"unknown view event {ev.kind!r}")
 
 
