@@ -127,32 +127,43 @@ def test_live_bad_address_and_busy_port_are_one_line_errors(tmp_path):
     assert not (tmp_path / "e.csv").exists()
 
 
-def test_the_server_runs_in_its_own_process_and_a_dead_one_never_blocks_the_loop():
-    """The view's work is off the control process; when its process dies, offer drops, never waits."""
+def test_the_server_runs_in_its_own_process_and_a_stuck_or_dead_one_never_blocks_the_loop():
+    """The view's work is off the control process; a stuck server's process fills its buffer and a
+    dead one refuses: either way offer drops the event and returns at once."""
     import os
+    import signal
     import time
 
-    from amhe_cli.io.live import QUEUE, LiveServer
+    from amhe_cli.io.live import LiveServer
     from amhe_cli.io.view import Event, ViewFrames
     from amhe_cli.model.scene import Scene
     scene = Scene()
     server = LiveServer(ViewFrames(scene.model), "127.0.0.1", 0).start()
+    ev = Event("state", 0.0, (scene.model.qpos0.copy(),))
+    n = 5000  # about 2.5 MB of frames: more than the buffer holds
     try:
         assert server._proc.pid != os.getpid() and server._proc.is_alive() and server.port > 0
-        ev = Event("state", 0.0, (scene.model.qpos0.copy(),))
-        server._proc.kill()
-        server._proc.join(5)
+        os.kill(server._proc.pid, signal.SIGSTOP)  # stuck
         t0 = time.perf_counter()
-        for _ in range(QUEUE + 200):
+        for _ in range(n):
             server.offer(ev)
         assert time.perf_counter() - t0 < 1.0
-        assert server.dropped >= 200
+        stuck = server._dropped_here
+        assert 0 < stuck < n
+        server._proc.kill()  # dead
+        server._proc.join(5)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            server.offer(ev)
+        assert time.perf_counter() - t0 < 1.0
+        assert server._dropped_here >= stuck + n - 1
     finally:
         t0 = time.perf_counter()
         server.close()
         assert time.perf_counter() - t0 < 5.0
+    before = server.dropped
     server.offer(ev)  # after close: dropped, no error
-    assert server.dropped >= 201
+    assert server.dropped == before + 1
 
 
 def test_live_layout_prints_the_shipped_layout_built_from_the_sdk(tmp_path):

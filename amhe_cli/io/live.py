@@ -7,8 +7,8 @@ protocol (subprotocols ``foxglove.sdk.v1`` / ``foxglove.websocket.v1``). Each vi
 what a recording holds, so a layout works on both.
 
 Off the control path: hooks hand :class:`~amhe_cli.io.view.Event` s to :meth:`LiveServer.offer`,
-which only puts them on a bounded queue to the server's own process (a full queue drops the event:
-frames are dropped, never delayed, and nothing blocks). That process converts, encodes and sends,
+which only sends them, pickled, as one datagram on a local socket pair to the server's own process
+(a full buffer drops the event: frames are dropped, never delayed, and nothing blocks). That process converts, encodes and sends,
 so none of it holds the control process's interpreter lock; it keeps bounded queues of its own (the
 oldest frame dropped first) and does no work for a topic nobody subscribed to. The SDK's own
 per-client backlog drops the oldest message for a slow viewer.
@@ -19,8 +19,9 @@ from __future__ import annotations
 import collections
 import multiprocessing
 import os
-import queue
+import pickle
 import signal
+import socket
 import time
 from importlib import resources
 
@@ -31,10 +32,13 @@ from amhe_cli.io.view import VIEW_TOPICS, Event, ViewFrames, encoder, msgdef
 DEFAULT_PORT = 8765
 #: Default host: loopback only; ``--live 0.0.0.0:8765`` opens it to the network.
 DEFAULT_HOST = "127.0.0.1"
-#: Largest number of events in flight to the server's process (more are dropped, never waited for).
-QUEUE = 512
+#: Bytes of events in flight to the server's process (the socket's send buffer; more are dropped,
+#: never waited for): about a thousand robot-state frames.
+INBOX_BYTES = 1 << 20
 #: Longest wait for the server's process to start and listen [s] (it imports mujoco and the SDK).
 START_TIMEOUT = 30.0
+_END = pickle.dumps(None)
+
 #: Largest number of robot-state frames waiting to be sent (older ones are dropped first).
 STATE_QUEUE = 64
 #: Largest number of other events (plans, beliefs, logs) waiting; the oldest are dropped first.
@@ -90,9 +94,10 @@ class LiveServer:
 
     Off the control path: the server, the conversion of events into messages and their CDR encoding
     (pure Python, about 0.5 ms per robot-state frame) run in a child process (``spawn``), so they
-    never hold the control process's interpreter lock. :meth:`offer` only hands the event to a
-    bounded inter-process queue (pickled by the queue's feeder thread, about 20 µs); when the queue
-    is full (the child is stuck or gone) the event is dropped, never waited for.
+    never hold the control process's interpreter lock. :meth:`offer` only pickles the event and
+    sends it as one non-blocking datagram on a local socket pair (about 20 µs, in the caller's thread;
+    no other thread of the control process wakes); when the socket's buffer (:data:`INBOX_BYTES`) is
+    full, the server's process is gone or the event is too big, the event is dropped, never waited for.
 
     Args:
         frames: converts events into messages (a copy goes to the server's process at :meth:`start`;
@@ -105,7 +110,7 @@ class LiveServer:
             process did not start within :data:`START_TIMEOUT` s.
 
     Attributes (read from the server's process while it runs):
-        sent: messages sent; dropped: events dropped because a queue was full.
+        sent: messages sent; dropped: events dropped (a full buffer or queue, a failed conversion).
         cpu_s: CPU time the server's process used so far [s] (converting, encoding, the SDK's
             network threads), none of it on the control process.
     """
@@ -114,7 +119,7 @@ class LiveServer:
         self.frames = frames
         self.host, self.port, self.name = host, port, name
         self._proc = None
-        self._queue = None
+        self._tx = None
         self._stats = None
         self._dropped_here = 0
 
@@ -127,14 +132,19 @@ class LiveServer:
         """
         require_sdk()
         ctx = multiprocessing.get_context("spawn")  # never fork a process that runs control threads
-        self._queue = ctx.Queue(maxsize=QUEUE)
+        # events travel as datagrams on a local socket pair: one non-blocking send in the caller's
+        # thread, no feeder thread to wake, whole or not at all
+        self._tx, rx = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._tx.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, INBOX_BYTES)
+        self._tx.setblocking(False)
         self._stats = ctx.Array("d", 3, lock=False)  # sent, dropped, cpu_s
         ready, child_end = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(target=_serve, name="amhe-live", daemon=True,
-                                 args=(self.frames, self.host, self.port, self.name, self._queue, child_end,
+                                 args=(self.frames, self.host, self.port, self.name, rx, child_end,
                                        self._stats, os.getpid()))
         self._proc.start()
         child_end.close()
+        rx.close()
         try:
             reply = ready.recv() if ready.poll(START_TIMEOUT) else ("error", f"no answer in {START_TIMEOUT:g} s")
         except EOFError:
@@ -169,8 +179,9 @@ class LiveServer:
         if self._proc is None:
             return
         try:
-            self._queue.put(None, timeout=1.0)
-        except (queue.Full, ValueError, OSError):
+            self._tx.settimeout(1.0)
+            self._tx.send(_END)
+        except OSError:
             pass
         self._proc.join(timeout=3.0)
         self._kill()
@@ -180,9 +191,8 @@ class LiveServer:
             self._proc.terminate()
             self._proc.join(timeout=2.0)
         self._proc = None
-        if self._queue is not None:
-            self._queue.cancel_join_thread()  # exiting never waits on a queue nobody reads
-            self._queue.close()
+        if self._tx is not None:
+            self._tx.close()
 
     def __enter__(self) -> "LiveServer":
         return self.start() if self._proc is None else self
@@ -198,12 +208,12 @@ class LiveServer:
             self._dropped_here += 1
             return
         try:
-            self._queue.put_nowait(ev)
-        except (queue.Full, ValueError, OSError):
+            self._tx.send(pickle.dumps(ev, pickle.HIGHEST_PROTOCOL))
+        except OSError:  # the buffer is full (BlockingIOError), the process gone, or the event too big
             self._dropped_here += 1
 
 
-def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox, ready, stats, parent: int) -> None:
+def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox: socket.socket, ready, stats, parent: int) -> None:
     """The server's process: listen, answer ``ready`` with ("ok", port) or ("error", why), then send
     what ``inbox`` brings until it brings None (draining up to 1 s) or the parent process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it stops us
@@ -215,6 +225,7 @@ def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox, ready, st
         return
     ready.send(("ok", sender.port))
     ready.close()
+    sender.cpu0 = time.process_time()  # what the view costs from here on, not the imports
     try:
         sender.run(inbox, parent)
     finally:
@@ -239,6 +250,7 @@ class _Sender:
         self.encoders: dict = {}
         self.server = None
         self.port = None
+        self.cpu0 = 0.0
 
     def listen(self, host: str, port: int, name: str) -> None:
         fg = require_sdk()
@@ -275,22 +287,22 @@ class _Sender:
         q.append(ev)
         return True
 
-    def run(self, inbox, parent: int) -> None:
+    def run(self, inbox: socket.socket, parent: int) -> None:
         draining_until = None
         wait = 0.0
         while True:
             try:  # block for the first event (at most ``wait``), then take all that are there
-                if not self._take(inbox.get(timeout=wait) if wait > 0 else inbox.get_nowait()):
-                    draining_until = draining_until or time.monotonic() + 1.0
+                inbox.settimeout(wait)
                 while draining_until is None:
-                    if not self._take(inbox.get_nowait()):
+                    if not self._take(pickle.loads(inbox.recv(INBOX_BYTES))):
                         draining_until = time.monotonic() + 1.0
-            except queue.Empty:
+                    inbox.setblocking(False)
+            except (BlockingIOError, TimeoutError):
                 pass
-            except (EOFError, OSError):  # the parent is gone
+            except OSError:  # the parent is gone
                 return
             now = time.monotonic()
-            self.stats[0], self.stats[1], self.stats[2] = self.sent, self.dropped, time.process_time()
+            self.stats[0], self.stats[1], self.stats[2] = self.sent, self.dropped, time.process_time() - self.cpu0
             if draining_until is not None and (now >= draining_until or not (self.events or self.states)):
                 return
             if os.getppid() != parent:
