@@ -8,6 +8,8 @@ fail (or time out) the test.
 from __future__ import annotations
 
 import io
+import subprocess
+import sys
 import json
 import time
 from pathlib import Path
@@ -237,7 +239,21 @@ def test_progress_prints_lines_when_not_a_terminal(capsys):
 
 def _commands():
     from amhe_cli.cli import cli
-    return {name: cli.commands[name] for name in ("identify", "probe", "mhe-replay", "run", "evaluate")}
+    return {name: cli.get_command(None, name) for name in ("identify", "probe", "mhe-replay", "run", "evaluate")}
+
+
+def test_amhe_help_lists_each_commands_own_line_without_importing_them():
+    """``amhe --help`` imports no subcommand (mujoco, cma); the lines it lists are the commands' own."""
+    code = ("import sys; from amhe_cli.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit:\n    pass\n"
+            "print(sorted(m for m in ('mujoco', 'cma', 'scipy', 'amhe_cli.cli.identify') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
+    assert "identify     Identify box mass" in out.stdout and "live-layout  Print the Foxglove" in out.stdout
+    from amhe_cli.cli import COMMANDS, cli
+    for name, (_, _, line) in COMMANDS.items():
+        assert cli.get_command(None, name).get_short_help_str(limit=200) == line, name
 
 
 @pytest.mark.parametrize("name", ["identify", "probe", "mhe-replay", "run", "evaluate"])

@@ -374,19 +374,13 @@ def test_record_has_a_row_per_packet(tmp_path):
 # --- the command line ---------------------------------------------------------------------
 
 def test_cli_prints_the_bound_port_and_ends_cleanly(tmp_path):
-    from amhe_cli.cli import cli
-    if "emulate" in cli.commands:
-        prog = "from amhe_cli.cli import main; main()"
-    else:  # not registered yet: call the command object itself
-        prog = "from amhe_cli.cli.emulate import emulate_cmd; emulate_cmd()"
+    prog = "from amhe_cli.cli import main; main()"
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind((LOOP, 0))
     rx.settimeout(3.0)
     rec = tmp_path / "rx.csv"
     args = [sys.executable, "-c", prog, "emulate", "go1", "--task", "t1", "--port", "0",
             "--pose-to", f"{LOOP}:{rx.getsockname()[1]}", "--record", str(rec)]
-    if "emulate" not in cli.commands:
-        args.remove("emulate")
     try:
         proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         line = proc.stdout.readline()

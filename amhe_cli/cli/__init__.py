@@ -9,23 +9,67 @@ Warnings (a truncated log, a dropped message) print as ``amhe: warning: …``.
 
 from __future__ import annotations
 
+import importlib
 import sys
 import warnings
 
 import click
 
 from amhe_cli import __version__
-from amhe_cli.cli.emulate import emulate_cmd
-from amhe_cli.cli.evaluate import evaluate_cmd
-from amhe_cli.cli.identify import identify_cmd
-from amhe_cli.cli.live_layout import live_layout_cmd
-from amhe_cli.cli.mhe_replay import mhe_replay_cmd
-from amhe_cli.cli.probe import probe_cmd
-from amhe_cli.cli.run import run_cmd
 from amhe_cli.errors import AmheError
 
+#: Subcommand -> (module, command object's name, the line ``amhe --help`` lists). A subcommand's
+#: module is imported only when it runs (or its own ``--help`` is asked for): their imports (mujoco,
+#: scipy, cma with matplotlib) take seconds that ``amhe --help`` and ``amhe live-layout`` need not
+#: pay. A test checks each line is the command's own first docstring line.
+COMMANDS = {
+    "identify": ("amhe_cli.cli.identify", "identify_cmd",
+                 "Identify box mass, inertia and box-floor friction from LOG (SPI-style CMA-ES)."),
+    "probe": ("amhe_cli.cli.probe", "probe_cmd",
+              "Probe for a first belief (--target sim), or report what each LOG can tell."),
+    "mhe-replay": ("amhe_cli.cli.mhe_replay", "mhe_replay_cmd",
+                   "Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq."),
+    "run": ("amhe_cli.cli.run", "run_cmd",
+            "Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1."),
+    "evaluate": ("amhe_cli.cli.evaluate", "evaluate_cmd",
+                 "Run modes × seeds of a task in parallel and print the paper's Table I layout."),
+    "emulate": ("amhe_cli.cli.emulate", "emulate_cmd",
+                "Emulate a robot on this machine, for testing the real-robot path without one."),
+    "live-layout": ("amhe_cli.cli.live_layout", "live_layout_cmd",
+                    "Print the Foxglove layout for --live and for recordings (JSON, on stdout)."),
+}
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands (:data:`COMMANDS`) are imported when first asked for."""
+
+    def list_commands(self, ctx) -> list[str]:
+        return sorted(set(super().list_commands(ctx)) | set(COMMANDS))
+
+    def get_command(self, ctx, name: str):
+        """The subcommand ``name`` (importing its module the first time), or None."""
+        if name in COMMANDS and name not in self.commands:
+            module, attr, _ = COMMANDS[name]
+            self.add_command(getattr(importlib.import_module(module), attr), name)
+        return super().get_command(ctx, name)
+
+    def format_commands(self, ctx, formatter) -> None:
+        """The ``Commands:`` list from :data:`COMMANDS`' lines, importing nothing."""
+        names = self.list_commands(ctx)
+        if not names:
+            return
+        limit = formatter.width - 6 - max(len(n) for n in names)
+        rows = []
+        for name in names:
+            if name in COMMANDS and name not in self.commands:
+                rows.append((name, click.utils.make_default_short_help(COMMANDS[name][2], limit)))
+            else:
+                rows.append((name, self.commands[name].get_short_help_str(limit)))
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="amhe")
 def cli():
     """Sampling-based system identification and adaptive MPC for a Go1 pushing a box.
@@ -35,10 +79,6 @@ def cli():
     for a first belief, and push boxes with an adaptive sampling MPC.
     """
 
-
-
-for _cmd in (identify_cmd, probe_cmd, mhe_replay_cmd, run_cmd, evaluate_cmd, emulate_cmd, live_layout_cmd):
-    cli.add_command(_cmd)
 
 
 def main(argv=None) -> None:

@@ -52,7 +52,6 @@ import time
 from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
-import cma
 import numpy as np
 
 from amhe_cli.estimation.clips import Clips, choose_informative, rest_travel, sample_clips
@@ -317,6 +316,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             "bounds": [list((space.lower - p0) / s0), list((space.upper - p0) / s0)],
             "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": settings.tolx, "tolflatfitness": 5,
         }
+        import cma  # here, not at import: it loads matplotlib.pyplot and scipy.stats (1–2 s)
         es = cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0, opts)
         history = []
         evals = 0
