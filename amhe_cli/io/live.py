@@ -134,7 +134,10 @@ class LiveServer:
         ctx = multiprocessing.get_context("spawn")  # never fork a process that runs control threads
         # events travel as datagrams on a local socket pair: one non-blocking send in the caller's
         # thread, no feeder thread to wake, whole or not at all
-        self._tx, rx = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        try:
+            self._tx, rx = socket.socketpair(socket.AF_UNIX, socket.SOCK_DGRAM)
+        except (AttributeError, OSError) as exc:  # no local datagram sockets (Windows)
+            raise AmheError(f"--live needs local datagram sockets (Linux, macOS): {exc}") from None
         self._tx.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, INBOX_BYTES)
         self._tx.setblocking(False)
         self._stats = ctx.Array("d", 3, lock=False)  # sent, dropped, cpu_s
