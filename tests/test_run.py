@@ -802,7 +802,7 @@ def _loopback_only(cmd: list) -> list:
 
 
 def test_evaluate_on_a_local_ray_instance_gives_the_local_pools_rows(tmp_path):
-    """`amhe evaluate --task t4 --seeds 2 --modes true --duration 5 --ray` on a real local Ray instance
+    """`amhe evaluate --task t4 --seeds 2 --modes true --duration 2 --ray` on a real local Ray instance
     (two tasks of one CPU each), in a loopback-only network namespace: the same rows as the local
     process pool for the same seeds, control_hz (a wall-clock rate) aside."""
     import os
@@ -811,7 +811,7 @@ def test_evaluate_on_a_local_ray_instance_gives_the_local_pools_rows(tmp_path):
 
     from amhe_cli.io.rows import read_rows
     grid = [sys.executable, "-c", "from amhe_cli.cli import main; main()", "evaluate", "--task", "t4",
-            "--seeds", "2", "--modes", "true", "--duration", "5", "--workers", "2", "-q"]
+            "--seeds", "2", "--modes", "true", "--duration", "2", "--workers", "2", "-q"]
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0")
     on_ray = subprocess.run(_loopback_only(grid + ["--ray", "--out", str(tmp_path / "ray.csv")]), env=env,
                             capture_output=True, text=True, timeout=400)
