@@ -8,9 +8,9 @@ fail (or time out) the test.
 from __future__ import annotations
 
 import io
+import json
 import subprocess
 import sys
-import json
 import time
 from pathlib import Path
 from types import SimpleNamespace

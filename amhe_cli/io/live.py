@@ -8,10 +8,10 @@ what a recording holds, so a layout works on both.
 
 Off the control path: hooks hand :class:`~amhe_cli.io.view.Event` s to :meth:`LiveServer.offer`,
 which only sends them, pickled, as one datagram on a local socket pair to the server's own process
-(a full buffer drops the event: frames are dropped, never delayed, and nothing blocks). That process converts, encodes and sends,
-so none of it holds the control process's interpreter lock; it keeps bounded queues of its own (the
-oldest frame dropped first) and does no work for a topic nobody subscribed to. The SDK's own
-per-client backlog drops the oldest message for a slow viewer.
+(a full buffer drops the event: frames are dropped, never delayed, and nothing blocks). That
+process converts, encodes and sends, so none of it holds the control process's interpreter lock;
+it keeps bounded queues of its own (the oldest frame dropped first) and does no work for a topic
+nobody subscribed to. The SDK's own per-client backlog drops the oldest message for a slow viewer.
 """
 
 from __future__ import annotations
@@ -151,6 +151,7 @@ class LiveServer:
         try:
             reply = ready.recv() if ready.poll(START_TIMEOUT) else ("error", f"no answer in {START_TIMEOUT:g} s")
         except EOFError:
+            self._proc.join(timeout=1.0)
             reply = ("error", f"the server's process ended (exit code {self._proc.exitcode})")
         finally:
             ready.close()
@@ -167,14 +168,17 @@ class LiveServer:
 
     @property
     def sent(self) -> int:
+        """Messages the server's process has sent."""
         return int(self._stats[0]) if self._stats is not None else 0
 
     @property
     def dropped(self) -> int:
+        """Events dropped here (buffer full, process gone) and there (its queues full, a failed conversion)."""
         return self._dropped_here + (int(self._stats[1]) if self._stats is not None else 0)
 
     @property
     def cpu_s(self) -> float:
+        """CPU time [s] the server's process has used since it listened."""
         return float(self._stats[2]) if self._stats is not None else 0.0
 
     def close(self) -> None:
@@ -205,8 +209,8 @@ class LiveServer:
 
     # -- the hooks' side: never blocks ----------------------------------------------------------------------
     def offer(self, ev: Event) -> None:
-        """Hand ``ev`` to the server's process; a full queue (or a server already closed) drops it
-        (counted in :attr:`dropped`)."""
+        """Hand ``ev`` to the server's process; a full buffer, a server process gone or a server
+        already closed drops it (counted in :attr:`dropped`)."""
         if self._proc is None:
             self._dropped_here += 1
             return
@@ -216,7 +220,8 @@ class LiveServer:
             self._dropped_here += 1
 
 
-def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox: socket.socket, ready, stats, parent: int) -> None:
+def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox: socket.socket, ready, stats,
+           parent: int) -> None:
     """The server's process: listen, answer ``ready`` with ("ok", port) or ("error", why), then send
     what ``inbox`` brings until it brings None (draining up to 1 s) or the parent process is gone."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle; it stops us
