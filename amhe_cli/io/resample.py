@@ -72,13 +72,13 @@ def _slerp(t_msg: np.ndarray, q_msg: np.ndarray, grid: np.ndarray) -> np.ndarray
     return rotation_to_wxyz(Slerp(t, rotation_from_wxyz(q_msg))(g), g.shape)
 
 
-def _observed_interp(t_msg: np.ndarray, grid: np.ndarray, period: float, fill_ns: float = 0.0) -> np.ndarray:
+def _observed_interp(t_msg: np.ndarray, grid: np.ndarray, period: float) -> np.ndarray:
     """True where the grid time is a message time or lies between two close messages: at most
-    ``_GAP_FACTOR`` × ``period`` or ``fill_ns`` apart (all times [ns])."""
+    ``_GAP_FACTOR`` × ``period`` or :data:`FILL_GAP_S` apart (times and period [ns])."""
     i = np.clip(np.searchsorted(t_msg, grid, side="right") - 1, 0, len(t_msg) - 1)
     nxt = np.minimum(i + 1, len(t_msg) - 1)
     at_msg = t_msg[i] == grid
-    return at_msg | ((t_msg[nxt] - t_msg[i]) <= max(_GAP_FACTOR * period, fill_ns))
+    return at_msg | ((t_msg[nxt] - t_msg[i]) <= max(_GAP_FACTOR * period, FILL_GAP_S * 1e9))
 
 
 def _backward_diff(x: np.ndarray, dt: float) -> np.ndarray:
@@ -180,7 +180,7 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
     out["joint_pos"] = _lerp(js.fields["q"], i, u)
     measured["joint_states"] = "dq" in js.fields
     out["joint_vel"] = _lerp(js.fields["dq"], i, u) if "dq" in js.fields else _backward_diff(out["joint_pos"], dt)
-    observed["joint_states"] = _observed_interp(js.t_ns, grid, js.period_ns(), FILL_GAP_S * 1e9)
+    observed["joint_states"] = _observed_interp(js.t_ns, grid, js.period_ns())
     # efforts that are all zero are a field left unfilled, not a measurement
     if "tau" in js.fields and np.abs(js.fields["tau"]).max() > 1e-9:
         out["joint_effort"] = _lerp(js.fields["tau"], i, u)
@@ -190,7 +190,7 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
         s = series[role]
         out.update({f"{role}_{k}": v for k, v in resample_pose(s, grid, dt, smooth, meta, role).items()})
         measured[role] = "linvel" in s.fields
-        observed[role] = _observed_interp(s.t_ns, grid, s.period_ns(), FILL_GAP_S * 1e9)
+        observed[role] = _observed_interp(s.t_ns, grid, s.period_ns())
 
     # Commands: zero-order hold of the last command at or before each grid time.
     j = np.searchsorted(cmd.t_ns, grid, side="right") - 1
