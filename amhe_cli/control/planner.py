@@ -66,6 +66,17 @@ class PlannerSettings:
     refine_alpha: float = 0.5
     sigma_floor: float = 0.3
     sigma_ceiling: float = 2.0
+    #: knot σ [rad] while the fall reflex recovers the stand (a command whose ``phase`` is ``recover``),
+    #: 4× ``noise``. The actions that save a tipping trunk (a hanging leg reaching 5–10 cm down to the
+    #: floor, a leg stepping out) lie far from the stand's reference, beyond what ``noise`` samples:
+    #: from the recorded states of a T2 fall (true mode, seed 1, 0.5–0.3 s before it) the default
+    #: planner fell in 3 of 3 restarts, the same with 256 samples in 3 of 3, and with this σ in 0 of 3
+    #: (benchmarks/fall_forensics.py --rescue).
+    recovery_noise: tuple = (0.12, 0.2, 0.2)
+    #: while recovering, every cycle refines over ``refine_loops`` elite loops, as at a contact switch:
+    #: a wide distribution needs the loops to narrow onto the saving action (max tilt 22–24° against
+    #: 24–27° with one loop, on the same restarts)
+    recovery_refine: bool = True
 
     def check(self) -> None:
         """Raise :class:`AmheError` for settings that cannot work."""
@@ -74,13 +85,18 @@ class PlannerSettings:
                             "expected horizon >= 2, samples >= 2, 2 <= knots <= horizon")
         if not self.dt > 0 or not self.temperature > 0:
             raise AmheError(f"planner dt {self.dt} and temperature {self.temperature} must be positive")
+        for name in ("noise", "recovery_noise"):
+            v = getattr(self, name)
+            if len(v) != 3 or not all(x > 0 for x in v):
+                raise AmheError(f"planner {name} {list(v)}: expected three positive σ's [rad] (hip, thigh, calf)")
 
     @classmethod
     def from_dict(cls, d: dict) -> "PlannerSettings":
         check_names(d, {f.name for f in fields(cls)}, "planner setting")
         d = dict(d)
-        if "noise" in d:
-            d["noise"] = tuple(float(x) for x in d["noise"])
+        for k in ("noise", "recovery_noise"):
+            if k in d:
+                d[k] = tuple(float(x) for x in d[k])
         return cls(**d)
 
     def to_dict(self) -> dict:
@@ -168,10 +184,14 @@ class Planner:
         self.rng = np.random.default_rng(seed)
         self.knot_t = np.linspace(0.0, (s.horizon - 1) * s.dt, s.knots)
         self.basis = spline_basis(self.knot_t, np.arange(s.horizon) * s.dt)  # (T, K)
-        sigma0 = np.tile(np.asarray(s.noise, dtype=float), 4)  # (12,)
-        self.sigma0 = np.broadcast_to(sigma0, (s.knots, 12)).copy()
+        #: (K, 12) knot σ of the task's gait and of a recovery (``cmd["phase"] == "recover"``) [rad]
+        self.sigma_task = np.broadcast_to(np.tile(np.asarray(s.noise, dtype=float), 4), (s.knots, 12)).copy()
+        self.sigma_recover = np.broadcast_to(np.tile(np.asarray(s.recovery_noise, dtype=float), 4),
+                                             (s.knots, 12)).copy()
+        self.sigma0 = self.sigma_task
         self.mean = np.zeros((s.knots, 12))
         self.sigma = self.sigma0.copy()
+        self._recovering = False
         lo, hi = scene.model.actuator_ctrlrange.T
         self.ctrl_lo, self.ctrl_hi = lo.copy(), hi.copy()
         self._t_last: float | None = None
@@ -243,7 +263,10 @@ class Planner:
         Args:
             state: the plant's state in the planner scene's mjSTATE_FULLPHYSICS layout.
             t: time [s] (the gait phase clock).
-            cmd: the task's :meth:`~amhe_cli.control.tasks.Task.command` for this cycle.
+            cmd: the task's :meth:`~amhe_cli.control.tasks.Task.command` for this cycle. A
+                ``phase`` of ``recover`` (:func:`~amhe_cli.control.reflex.recovery_command`)
+                samples with ``recovery_noise`` from a mean reset to the reference, refining every
+                cycle if ``recovery_refine``; the first cycle after it starts the task's σ afresh.
             gait: the gait to track this cycle (default: the task's); the fall
                 reflex (:mod:`~amhe_cli.control.reflex`) asks for ``stand``. A change
                 of gait changes the contact mode, so the cycle refines.
@@ -256,8 +279,14 @@ class Planner:
         self._shift(t)
         gait = gait or self.gait
         ref = gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"], cmd.get("reach"))
+        recovering = cmd.get("phase") == "recover"
+        if recovering != self._recovering:  # a recovery starts or ends: the last distribution is not a guide
+            self._recovering = recovering
+            self.sigma0 = self.sigma_recover if recovering else self.sigma_task
+            self.mean = np.zeros_like(self.mean)
+            self.sigma = self.sigma0.copy()
         mode = (gait.name, gait.mode(t))
-        refine = mode != self._mode
+        refine = mode != self._mode or (recovering and s.recovery_refine)
         self._mode = mode
         loops = s.refine_loops if refine else 1
         floor, ceil = self.sigma0 * s.sigma_floor, self.sigma0 * s.sigma_ceiling
