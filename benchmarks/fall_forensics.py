@@ -10,6 +10,13 @@ lines are a table: runs, falls, recoveries, S_R per (task, mode).
 
     python benchmarks/fall_forensics.py --tasks t2,t3 --modes true,adaptive --seeds 8 --jobs 16 [--out runs.jsonl]
 
+``--rescue 0.5,0.4,0.3`` also asks, for every fall, *could the recovery have saved it*: from the
+recorded plant state that many seconds before the fall it restarts the stand recovery (the reflex's
+command, the planner as the run config sets it, the true parameters, 2 s) and reports whether
+the robot fell again and its largest tilt (``rescue`` in the run's line). Comparing run configs
+on the same falls separates a search that cannot find the saving action from a state already
+beyond saving.
+
 Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``).
 """
 
@@ -23,8 +30,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
-from amhe_cli.control.closed_loop import run_task
+from amhe_cli.control.closed_loop import TASK_BOX_SIZE, make_plant, make_planner, run_task
 from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
+from amhe_cli.control.gait import GAITS
+from amhe_cli.control.reflex import fallen, recovery_command, trunk_tilt
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.io.quat import quat_to_yaw, rotation_from_wxyz, world_to_body
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -51,14 +60,48 @@ def timeline(result, before: float) -> list[dict]:
             for j, i in enumerate(keep)]
 
 
+def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0) -> dict:
+    """Restart the stand recovery from the recorded state at ``t0`` [s]; did the robot stay up?
+
+    The planner is the run config's (true parameters), commanded as the fall reflex does
+    (:func:`~amhe_cli.control.reflex.recovery_command`, the ``stand`` gait) for ``duration``
+    seconds of lock-step sim from a fresh distribution.
+    """
+    task, s = run_settings(task_name, "true", config, threads=1)
+    i = int(np.argmin(np.abs(traj.t - t0)))
+    qpos = np.concatenate([traj.base_pos[i], traj.base_quat[i], traj.joint_pos[i], traj.box_pos[i], traj.box_quat[i]])
+    qvel = np.concatenate([traj.base_linvel[i], traj.base_angvel[i], traj.joint_vel[i], traj.box_linvel[i],
+                           traj.box_angvel[i]])
+    plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
+    plant.reset(qpos, qvel)
+    sc, floor = plant.scene, plant.scene.config.robot_floor
+    planner, _ = make_planner(task, s, None, task.truth)
+    tilt, fell = float(trunk_tilt(qpos[3:7])), False
+    with planner:
+        m = plant.measure()
+        while m.t < duration and not fell:
+            q, yaw = m.qpos, float(quat_to_yaw(m.qpos[sc.base_qpos[3:]]))
+            cmd = task.command(q[sc.base_qpos[:2]], yaw, q[sc.box_qpos[:2]], TASK_BOX_SIZE[0] / 2, t=t0 + m.t)
+            cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw)
+            plan = planner.plan(planner.scene.full_state(q[None], m.qvel[None])[0], t0 + m.t, cmd, GAITS["stand"])
+            plant.execute(plan.controls, s.planner.dt, 0.0)
+            m = plant.measure()
+            tilt = max(tilt, float(trunk_tilt(m.qpos[sc.base_qpos[3:]])))
+            fell = bool(fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
+                               task.fall_tilt))
+    return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "fell": fell, "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
+
+
 def one(args) -> dict:
-    task_name, mode, seed, config, belief, before, duration = args
+    task_name, mode, seed, config, belief, before, duration, rescue_at = args
     task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
     r = run_task(task, Belief(**belief) if belief else None, settings)
     row = {"task": task_name, "mode": mode, "seed": seed, **r.metrics(), "control_hz": round(r.control_hz, 2),
            "warnings": [w for w in r.warnings if "lost the box" not in w][:6]}
     if r.fell or r.failure:
         row["timeline"] = timeline(r, before)
+    if r.fell and rescue_at:
+        row["rescue"] = [rescue(task_name, config, r.traj, float(r.traj.t[-1]) - b) for b in rescue_at]
     return row
 
 
@@ -73,6 +116,7 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=None, help="time limit per run [s] (default: the task's)")
     ap.add_argument("--before", type=float, default=2.0, help="seconds of timeline before a fall")
     ap.add_argument("--out", default=None, help="append each run's JSON line here too")
+    ap.add_argument("--rescue", default="", help="seconds before each fall to restart the recovery from, e.g. 0.5,0.4,0.3")
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")
@@ -81,7 +125,8 @@ def main() -> None:
         for t in tasks:
             task, _ = run_settings(t, "adaptive", config)
             beliefs[t] = probe_belief(task, seed=0, threads=min(a.jobs, 4)).__dict__
-    jobs = [(t, m, s, config, beliefs.get(t) if m != "true" else None, a.before, a.duration)
+    rescue_at = [float(x) for x in a.rescue.split(",") if x]
+    jobs = [(t, m, s, config, beliefs.get(t) if m != "true" else None, a.before, a.duration, rescue_at)
             for s in range(a.first_seed, a.first_seed + a.seeds) for t in tasks for m in modes]
     rows = []
     out = open(a.out, "a") if a.out else None
@@ -102,6 +147,9 @@ def main() -> None:
                 print(f"{t:5} {m:9} {len(sel):4d} {sum(r['fell'] for r in sel):5d} "
                       f"{sum(r['recoveries'] for r in sel):5d} {100 * np.mean([r['success'] for r in sel]):6.1f} "
                       f"{np.median([r['e_g'] for r in sel]):7.3f}")
+    tries = [x for r in rows for x in r.get("rescue", [])]
+    if tries:
+        print(f"rescues: {sum(not x['fell'] for x in tries)} of {len(tries)} restarts stayed up")
     print(f"falls={sum(r['fell'] for r in rows)} runs={len(rows)}", file=sys.stdout)
 
 

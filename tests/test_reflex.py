@@ -119,6 +119,41 @@ def test_a_shoved_robot_stops_pushing_recovers_the_stand_and_resumes():
 
 
 
+def test_a_recovery_samples_wide_refines_every_cycle_and_the_task_gets_its_own_noise_back(monkeypatch):
+    """While the reflex recovers (command phase ``recover``) the planner samples knot offsets at
+    ``recovery_noise`` around a fresh mean and refines each cycle (``refine_loops`` batches); the
+    first task cycle after it samples at ``noise`` again."""
+    from amhe_cli.control.closed_loop import make_planner
+    from amhe_cli.control.gait import GAITS
+    from amhe_cli.control.planner import Planner
+
+    drawn = []
+    score = Planner._score
+
+    def spy(self, state, knots, ref, cmd):
+        drawn.append(np.std(knots[1:] - self.mean[None], axis=0).mean(axis=0)[:3])  # (hip, thigh, calf) of leg FR
+        return score(self, state, knots, ref, cmd)
+
+    monkeypatch.setattr(Planner, "_score", spy)
+    task = get_task("t1")
+    settings = RunSettings(mode="true", threads=1, planner=PlannerSettings(
+        samples=200, horizon=6, knots=2, refine_loops=2, noise=(0.01, 0.02, 0.02), recovery_noise=(0.1, 0.2, 0.2)))
+    planner, _ = make_planner(task, settings, None, task.truth)
+    plant = make_plant(task, settings.kp, settings.kd)
+    state = planner.scene.full_state(plant.data.qpos[None], plant.data.qvel[None])[0]
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), 0.19)
+    rec = recovery_command(cmd, np.zeros(2), 0.0)
+    with planner:
+        plans = [planner.plan(state, t, c, GAITS["stand"] if c is rec else None)
+                 for t, c in ((0.0, cmd), (0.02, rec), (0.04, rec), (0.06, cmd))]
+    assert [p.rollouts for p in plans[1:3]] == [400, 400]  # two refine loops each recovering cycle
+    first_recovery, task_again = drawn[plans[0].rollouts // 200], drawn[-1]
+    np.testing.assert_allclose(first_recovery, [0.1, 0.2, 0.2], rtol=0.25)
+    assert np.all(task_again < 0.06)
+    with pytest.raises(AmheError, match="recovery_noise"):
+        PlannerSettings(recovery_noise=(0.1, 0.2)).check()
+
+
 def test_a_planner_too_slow_for_the_wall_clock_is_said_at_the_start(monkeypatch):
     """On the wall clock a plan's compute time is open-loop time: a planner under 15 Hz gets a warning after its
     first cycles, naming its rate and what to do; a fast one gets none."""
