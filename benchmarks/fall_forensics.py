@@ -89,7 +89,8 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0)
             tilt = max(tilt, float(trunk_tilt(m.qpos[sc.base_qpos[3:]])))
             fell = bool(fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
                                task.fall_tilt))
-    return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "fell": fell, "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
+    return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "fell": fell,
+            "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
 
 
 def one(args) -> dict:
@@ -116,7 +117,8 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=None, help="time limit per run [s] (default: the task's)")
     ap.add_argument("--before", type=float, default=2.0, help="seconds of timeline before a fall")
     ap.add_argument("--out", default=None, help="append each run's JSON line here too")
-    ap.add_argument("--rescue", default="", help="seconds before each fall to restart the recovery from, e.g. 0.5,0.4,0.3")
+    ap.add_argument("--rescue", default="",
+                    help="seconds before each fall to restart the recovery from, e.g. 0.5,0.4,0.3")
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")

@@ -118,7 +118,6 @@ def test_a_shoved_robot_stops_pushing_recovers_the_stand_and_resumes():
     assert np.degrees(trunk_tilt(shoved.traj.base_quat[during][-1])) < 5  # level again when it resumed
 
 
-
 def test_a_recovery_samples_wide_refines_every_cycle_and_the_task_gets_its_own_noise_back(monkeypatch):
     """While the reflex recovers (command phase ``recover``) the planner samples knot offsets at
     ``recovery_noise`` around a fresh mean and refines each cycle (``refine_loops`` batches); the
