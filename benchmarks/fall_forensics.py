@@ -45,7 +45,7 @@ def timeline(result, before: float) -> list[dict]:
     cfg = tr.meta["scene"]
     scene = Scene(SceneConfig.from_dict(cfg))
     floor = scene.config.robot_floor
-    qpos = np.concatenate([tr.base_pos, tr.base_quat, tr.joint_pos, tr.box_pos, tr.box_quat], axis=1)
+    qpos = scene.qpos_qvel(tr)[0]
     keep = np.where(tr.t >= tr.t[-1] - before)[0][::50]
     feet = scene.foot_bottoms(qpos[keep]) - floor < 0.01
     q = tr.base_quat[keep]
@@ -69,14 +69,12 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0)
     """
     task, s = run_settings(task_name, "true", config, threads=1)
     i = int(np.argmin(np.abs(traj.t - t0)))
-    qpos = np.concatenate([traj.base_pos[i], traj.base_quat[i], traj.joint_pos[i], traj.box_pos[i], traj.box_quat[i]])
-    qvel = np.concatenate([traj.base_linvel[i], traj.base_angvel[i], traj.joint_vel[i], traj.box_linvel[i],
-                           traj.box_angvel[i]])
     plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
-    plant.reset(qpos, qvel)
+    qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
+    plant.reset(qpos[0], qvel[0])
     sc, floor = plant.scene, plant.scene.config.robot_floor
     planner, _ = make_planner(task, s, None, task.truth)
-    tilt, fell = float(trunk_tilt(qpos[3:7])), False
+    tilt, fell = float(trunk_tilt(qpos[0, sc.base_qpos[3:]])), False
     with planner:
         m = plant.measure()
         while m.t < duration and not fell:

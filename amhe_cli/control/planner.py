@@ -188,10 +188,9 @@ class Planner:
         self.sigma_task = np.broadcast_to(np.tile(np.asarray(s.noise, dtype=float), 4), (s.knots, 12)).copy()
         self.sigma_recover = np.broadcast_to(np.tile(np.asarray(s.recovery_noise, dtype=float), 4),
                                              (s.knots, 12)).copy()
-        self.sigma0 = self.sigma_task
+        self._recovering = False
         self.mean = np.zeros((s.knots, 12))
         self.sigma = self.sigma0.copy()
-        self._recovering = False
         lo, hi = scene.model.actuator_ctrlrange.T
         self.ctrl_lo, self.ctrl_hi = lo.copy(), hi.copy()
         self._t_last: float | None = None
@@ -201,6 +200,11 @@ class Planner:
         m = scene.model
         self._qpos = slice(1, 1 + m.nq)
         self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
+
+    @property
+    def sigma0(self) -> np.ndarray:
+        """(K, 12) the knot σ this cycle samples around [rad]: the recovery's while recovering, else the task's."""
+        return self.sigma_recover if self._recovering else self.sigma_task
 
     def close(self) -> None:
         self.pool.close()
@@ -282,7 +286,6 @@ class Planner:
         recovering = cmd.get("phase") == "recover"
         if recovering != self._recovering:  # a recovery starts or ends: the last distribution is not a guide
             self._recovering = recovering
-            self.sigma0 = self.sigma_recover if recovering else self.sigma_task
             self.mean = np.zeros_like(self.mean)
             self.sigma = self.sigma0.copy()
         mode = (gait.name, gait.mode(t))
