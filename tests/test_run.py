@@ -319,18 +319,24 @@ def test_a_robot_past_the_box_walks_back_behind_it():
     assert cmd["phase"] == "approach" and cmd["speed"] > 0 and cmd["waypoint"][1] == pytest.approx(box[1])
 
 
-def test_t1_speed_command_slows_to_zero_at_goal():
+def test_t1_speed_command_slows_to_its_floor_at_goal_and_a_bad_floor_is_refused():
     task = get_task("t1")
     goal = np.asarray(task.goal)
 
-    def speed(box):  # the robot in its pushing pose behind the box
+    def cmd(box):  # the robot in its pushing pose behind the box
         box = np.asarray(box, dtype=float)
-        return task.command(box - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, box, HALF_DEPTH)["speed"]
+        return task.command(box - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, box, HALF_DEPTH)
 
-    far, mid, near = speed(task.box_start), speed(goal - [0.2, 0.0]), speed(goal - [0.5 * task.goal_tol, 0.0])
-    assert far == pytest.approx(0.2)
-    assert 0 < mid < far
-    assert near == 0.0
+    far, mid, near = cmd(task.box_start), cmd(goal - [0.2, 0.0]), cmd(goal - [0.5 * task.goal_tol, 0.0])
+    assert far["speed"] == pytest.approx(0.2) and far["box_speed"] == pytest.approx(0.2)
+    assert task.slow_floor * 0.2 < mid["speed"] < far["speed"]
+    # a force-limited push still gets a command at the goal (a μ 0.8 box crept 0.15 m for 30 s without)
+    assert near["speed"] == pytest.approx(task.slow_floor * 0.2) and near["speed"] > 0
+    assert near["box_speed"] == pytest.approx(task.slow_floor * 0.2)
+    assert get_task("t1", slow_floor=0.0).command(
+        goal - [HALF_DEPTH + HEAD_REACH, 0.0], 0.0, goal, HALF_DEPTH)["speed"] == 0.0
+    with pytest.raises(AmheError, match="slow_floor"):
+        get_task("t1", slow_floor=1.5)
 
 
 def test_box_reference_never_passes_target():
