@@ -154,9 +154,9 @@ class Task:
         slow_radius: the commanded speeds (robot and box) fall linearly over this last distance [m] ...
         slow_floor: ... to this fraction of ``speed`` / ``box_speed`` at ``goal_tol``, where the run ends.
             The push is force-limited: on T4's μ 0.8 floor a 4 kg box moved at 3–8 mm/s under a
-            0.02–0.09 m/s command, and a slow-down to 0 made it creep the last 0.15 m for 30 s, a
-            third of the time-limited runs' time near the goal (T4 baseline seed 1; the falls of the
-            15-seed T4 grid came 0.07–0.10 m from the goal after 17–44 s).
+            0.02–0.09 m/s command, so a slow-down to 0 made it creep its last 0.15 m for 30 s (T4
+            baseline seed 1); three of the 15-seed T4 grid's four falls came 0.07–0.10 m from the goal
+            during such waits (docs/fall_prevention.md#waiting-at-the-goal).
         push_side: T5's lateral push direction (+1 left, −1 right); 0 otherwise.
         robot_pose: where the robot starts, (x [m], y [m], yaw [rad]): the
             one-leg push keeps the trunk there (over its three planted feet).
@@ -164,6 +164,9 @@ class Task:
         fall_height: base height over the robot's floor under which the robot counts as fallen [m].
         fall_tilt: trunk tilt beyond which it counts as fallen [rad] (35°: no recorded run tilted further
             and came back; the Go1 safety layer damps at 40°).
+
+    Raises:
+        AmheError: ``slow_floor`` outside [0, 1].
     """
 
     name: str
