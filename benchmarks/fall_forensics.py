@@ -30,10 +30,10 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 
 import numpy as np
 
-from amhe_cli.control.closed_loop import TASK_BOX_SIZE, make_plant, make_planner, run_task
+from amhe_cli.control.closed_loop import has_fallen, make_plant, make_planner, measured_command, run_task
 from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
 from amhe_cli.control.gait import GAITS
-from amhe_cli.control.reflex import fallen, recovery_command, trunk_tilt
+from amhe_cli.control.reflex import recovery_command, trunk_tilt
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.io.quat import quat_to_yaw, rotation_from_wxyz, world_to_body
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -72,21 +72,19 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0)
     plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
     qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
     plant.reset(qpos[0], qvel[0])
-    sc, floor = plant.scene, plant.scene.config.robot_floor
+    sc = plant.scene
     planner, _ = make_planner(task, s, None, task.truth)
     tilt, fell = float(trunk_tilt(qpos[0, sc.base_qpos[3:]])), False
     with planner:
         m = plant.measure()
         while m.t < duration and not fell:
-            q, yaw = m.qpos, float(quat_to_yaw(m.qpos[sc.base_qpos[3:]]))
-            cmd = task.command(q[sc.base_qpos[:2]], yaw, q[sc.box_qpos[:2]], TASK_BOX_SIZE[0] / 2, t=t0 + m.t)
-            cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw)
-            plan = planner.plan(planner.scene.full_state(q[None], m.qvel[None])[0], t0 + m.t, cmd, GAITS["stand"])
+            cmd, yaw = measured_command(task, sc, m.qpos, t0 + m.t)
+            cmd = recovery_command(cmd, m.qpos[sc.base_qpos[:2]], yaw)
+            plan = planner.plan(planner.scene.full_state(m.qpos[None], m.qvel[None])[0], t0 + m.t, cmd, GAITS["stand"])
             plant.execute(plan.controls, s.planner.dt, 0.0)
             m = plant.measure()
             tilt = max(tilt, float(trunk_tilt(m.qpos[sc.base_qpos[3:]])))
-            fell = bool(fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
-                               task.fall_tilt))
+            fell = has_fallen(task, sc, m.qpos)
     return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "fell": fell,
             "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
 

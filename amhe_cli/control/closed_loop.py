@@ -311,6 +311,27 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     return Planner(pscene, space, task, s.planner, nthread=s.threads, seed=s.seed), space
 
 
+def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float) -> tuple[dict, float]:
+    """The task's command (:meth:`~amhe_cli.control.tasks.Task.command`) from a measured plant state.
+
+    Args:
+        qpos: (nq,) the plant's generalized positions (``scene``'s layout); t: task time [s].
+    Returns:
+        (command dict, the trunk's yaw [rad]).
+    """
+    yaw = float(quat_to_yaw(qpos[scene.base_qpos[3:]]))
+    cmd = task.command(qpos[scene.base_qpos[:2]], yaw, qpos[scene.box_qpos[:2]], TASK_BOX_SIZE[0] / 2, t=t,
+                       box_yaw=float(quat_to_yaw(qpos[scene.box_qpos[3:]])))
+    return cmd, yaw
+
+
+def has_fallen(task: Task, scene: Scene, qpos: np.ndarray) -> bool:
+    """Whether the measured plant state (qpos (nq,)) counts as a fall by the task's ``fall_height`` [m] and
+    ``fall_tilt`` [rad] (:func:`~amhe_cli.control.reflex.fallen`)."""
+    return bool(fallen(qpos[scene.base_qpos[:3]], qpos[scene.base_qpos[3:]], scene.config.robot_floor,
+                       task.fall_height, task.fall_tilt))
+
+
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
              progress: Callable[[float], None] | None = None, plant: Plant | None = None,
              view=None) -> RunResult:
@@ -405,7 +426,6 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             view.log(0.0, f"{task.name} {s.mode}: run started", "info")
             show_belief(0.0, est_v[0], est_s[0])
 
-        half_depth = TASK_BOX_SIZE[0] / 2
         sc = plant.scene
         stand = GAITS["stand"]
         rate_checked = False
@@ -422,9 +442,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if safety_status is not None and view:
                 view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
-            yaw = float(quat_to_yaw(q[sc.base_qpos[3:]]))
-            cmd = task.command(q[sc.base_qpos[:2]], yaw, box_xy, half_depth, t=t,
-                               box_yaw=float(quat_to_yaw(q[sc.box_qpos[3:]])))
+            cmd, yaw = measured_command(task, sc, q, t)
             text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]])
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")
@@ -480,8 +498,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     swap(space.vector(plant.truth_values), np.zeros(space.dim), t_ev)
             m = plant.measure()
             now = clock[0] = m.t
-            if plant.armed and fallen(m.qpos[sc.base_qpos[:3]], m.qpos[sc.base_qpos[3:]], floor, task.fall_height,
-                                      task.fall_tilt):
+            if plant.armed and has_fallen(task, sc, m.qpos):
                 fell = True
                 warn(f"t={now:.2f} s: the robot fell (base at {m.qpos[sc.base_qpos[2]] - floor:.3f} m over the "
                      f"floor, tilted {np.degrees(trunk_tilt(m.qpos[sc.base_qpos[3:]])):.0f}°)")
