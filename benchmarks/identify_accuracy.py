@@ -17,8 +17,9 @@ Per log, the table gives the mass error [%] (mean ± std, median, worst), the
 worst friction error, the **2σ coverage** — the fraction of (run, parameter)
 values whose stated interval ``estimate ± 2σ`` holds the truth, for mass,
 friction and the three moments of inertia
-(:func:`~amhe_cli.estimation.uncertainty.coverage`) — and the median wall
-time. The last lines give the coverage and the worst errors over all logs.
+(:func:`~amhe_cli.estimation.uncertainty.coverage`) —, the RMS of
+(estimate − truth)/σ for mass and friction (``z``: 1 for an honest σ), the
+median stated mass σ [% of the truth] and the median wall time. The last lines give the coverage and the worst errors over all logs.
 """
 
 from __future__ import annotations
@@ -83,13 +84,19 @@ def one(job: dict) -> dict:
     s = res.summary()
     return {"log": job["log"], "seed": job["seed"], "tag": job.get("tag", ""), "estimate": s["estimate"], "std": s["std"],
             "truth": job["truth"], "wall_s": time.perf_counter() - t0, "generations": s["generations"],
-            "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"], "std_sources": s["std_sources"]}
+            "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"], "std_sources": s["std_sources"],
+            "replicates": s["replicates"]}
+
+
+def rms_z(err: np.ndarray, std: np.ndarray) -> float:
+    """RMS of (estimate − truth)/σ over runs: 1 for an honest σ (the issue asks 0.5–1.5)."""
+    return float(np.sqrt(np.mean((np.asarray(err) / np.asarray(std)) ** 2)))
 
 
 def table(rows: list[dict]) -> None:
     from amhe_cli.estimation.uncertainty import coverage
     print(f"{'log':<24} {'n':>2} {'mass err % mean±std':>20} {'median':>7} {'worst':>7} {'mu err worst':>12} "
-          f"{'cov mass':>8} {'cov mu':>7} {'cov I':>6} {'wall s':>7}")
+          f"{'cov mass':>8} {'cov mu':>7} {'cov I':>6} {'z mass':>6} {'z mu':>5} {'sd mass %':>9} {'wall s':>7}")
     hits, worst_m, worst_mu = [], 0.0, 0.0
     for log in dict.fromkeys(r["log"] for r in rows):
         rs = [r for r in rows if r["log"] == log]
@@ -106,9 +113,13 @@ def table(rows: list[dict]) -> None:
                 hits.append(c.ravel())
         worst_m, worst_mu = max(worst_m, np.abs(me).max()), max(worst_mu, np.abs(mue).max())
         f = lambda k: f"{100 * cov[k].mean():.0f} %" if k in cov else "-"  # noqa: E731
+        sd_m = np.array([r["std"]["box_mass"] for r in rs])
+        sd_mu = np.array([r["std"]["box_friction"] for r in rs])
         print(f"{Path(log).name:<24} {len(rs):>2} {me.mean():+9.2f} ± {me.std():5.2f}   {np.median(np.abs(me)):6.2f} "
               f"{me[np.argmax(np.abs(me))]:+7.2f} {mue[np.argmax(np.abs(mue))]:+12.4f} {f('box_mass'):>8} "
-              f"{f('box_friction'):>7} {f('box_inertia'):>6} {np.median([r['wall_s'] for r in rs]):7.1f}")
+              f"{f('box_friction'):>7} {f('box_inertia'):>6} {rms_z(m - t['box_mass'], sd_m):6.2f} "
+              f"{rms_z(mue, sd_mu):5.2f} {100 * np.median(sd_m) / t['box_mass']:9.1f} "
+              f"{np.median([r['wall_s'] for r in rs]):7.1f}")
     allhits = np.concatenate(hits) if hits else np.zeros(0)
     print(f"2-sigma coverage over all runs and parameters: {100 * allhits.mean():.1f} % of {allhits.size} values")
     print(f"worst_mass_err_pct={worst_m:.2f} worst_mu_err={worst_mu:.4f}")

@@ -11,6 +11,7 @@ log, ``identify`` recovers it.
 from __future__ import annotations
 
 import copy
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -594,6 +595,25 @@ def test_identify_recovers_truth(traj, candidates):
     for name in ("box_mass", "box_friction"):
         assert summ["std"][name] >= max(src[k][name] for k in ("least_squares", "sandwich", "search")) * (1 - 1e-9)
     assert summ["generations"] == len(res.history) <= 25
+
+
+def test_bootstrap_replicates_leave_the_main_search_unchanged_and_report_their_spread(traj, scene, space2):
+    """replicates=4: three searches on resampled clips run beside the main one, which is bit-identical to a
+    run without them; their spread is reported as the ``replicates`` σ and each replicate is its own search."""
+    base = IdentifySettings(params=("box_mass", "box_friction"), n_clips=8, max_gen=5, popsize=6, candidates=1,
+                            seed=2)
+    alone = identify(traj, scene, space2, base)
+    both = identify(traj, scene, space2, replace(base, replicates=4))
+    np.testing.assert_array_equal(both.estimate, alone.estimate)
+    np.testing.assert_array_equal(both.curvature.std, alone.curvature.std)
+    assert [h["mean"] for h in both.history] == [h["mean"] for h in alone.history]
+    assert alone.replicates.size == 0 and "replicates" not in alone.summary()["std_sources"]
+    assert both.replicates.shape == (3, 2) and len(np.unique(both.replicates[:, 0])) == 3
+    assert both.evaluations == 4 * alone.evaluations
+    np.testing.assert_allclose(both.curvature.sources["replicates"], both.replicates.std(axis=0, ddof=1))
+    summ = both.summary()
+    assert [r["box_mass"] for r in summ["replicates"]] == list(both.replicates[:, 0])
+    assert summ["std_sources"]["replicates"]["box_mass"] > 0
 
 
 def test_fit_valley_recovers_a_quadratic_minimum():

@@ -111,7 +111,7 @@ def identify_options(f):
 
 
 def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed,
-                  t_range=None, candidates: int | None = None) -> IdentifySettings:
+                  t_range=None, candidates: int | None = None, replicates: int = 1) -> IdentifySettings:
     """:class:`IdentifySettings` from the shared options (validated)."""
     hr = parse_range(horizon, "--horizon") if horizon is not None else None
     if hr is not None and hr[0] <= 0:
@@ -119,7 +119,7 @@ def make_settings(params, n_clips, horizon, popsize, generations, prior_weight, 
     tr = parse_range(t_range, "--t-range") if t_range else None
     return IdentifySettings(params=parse_names(params), n_clips=n_clips, horizon=hr, popsize=popsize,
                             max_gen=generations, prior_weight=prior_weight, seed=seed, t_range=tr,
-                            candidates=candidates)
+                            candidates=candidates, replicates=replicates)
 
 
 def check_outputs(force: bool, *outputs: tuple[str, str | Path | None]) -> list[Path | None]:
@@ -311,6 +311,11 @@ def print_summary(result: IdentifyResult, truth: dict | None = None) -> None:
     click.echo(f"{s['clips']} clips{chosen}, {s['generations']} generations"
                f"{'' if result.converged else ' (stopped by --generations, not converged)'}, "
                f"{s['evaluations']} candidates, {s['wall_time_s']:.1f} s")
+    if s["replicates"]:
+        rep = s["std_sources"]["replicates"]
+        spread = ", ".join(f"{n} ± {fmt(rep[n])}" for n in ("box_mass", "box_friction") if n in rep)
+        click.echo(f"{len(s['replicates'])} bootstrap replicate searches (clips resampled): spread {spread} "
+                   f"(std_sources.replicates in --json)")
 
 
 def sensor_lines(meta: dict) -> list[str]:

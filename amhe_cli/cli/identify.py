@@ -18,6 +18,10 @@ from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_si
 @log_options
 @identify_options
 @click.option("--t-range", default=None, metavar="T0,T1", help="Use only this part of the log [s].")
+@click.option("--replicates", default=1, show_default=True, type=click.IntRange(1, 256),
+              help="Searches run side by side: the main one, and K-1 on bootstrap resamples of the clips "
+                   "(K x the rollouts, in as many rollout calls); their spread is reported as "
+                   "std_sources.replicates. Best with --device cuda, whose width they fill.")
 @click.option("--out", default=None, type=click.Path(), help="Belief YAML to write (default: <log stem>.belief.yaml).")
 @click.option("--force", is_flag=True, help="Overwrite existing output files (--out, --plot).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object with the results and nothing else.")
@@ -26,7 +30,7 @@ from amhe_cli.estimation.problem import example_logs, load_problem, parse_box_si
                    "recorded vs predicted box velocity and position error over the clips.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips, candidates, horizon, popsize,
-                 generations, prior_weight, t_range, seed, threads, out, force, as_json, plot, quiet):
+                 generations, prior_weight, t_range, replicates, seed, threads, out, force, as_json, plot, quiet):
     """Identify box mass, inertia and box-floor friction from LOG (SPI-style CMA-ES).
 
     With no LOG, runs on the bundled example log. Every output (--out, --plot)
@@ -41,7 +45,7 @@ def identify_cmd(log, topics, map_file, box_size, smooth, params, prior, n_clips
         if not as_json:
             click.echo(f"no LOG given: using the bundled example {Path(log).name}", err=True)
     settings = make_settings(params, n_clips, horizon, popsize, generations, prior_weight, seed, t_range,
-                             candidates=candidates)
+                             candidates=candidates, replicates=replicates)
     smooth = parse_smooth(smooth)
     out_path, plot_path = check_outputs(force, ("--out", default_output(out, log, ".belief.yaml")),
                                         ("--plot", check_png_name(plot)))

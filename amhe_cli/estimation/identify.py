@@ -117,6 +117,12 @@ class IdentifySettings:
         average_last: the estimate is the mean of CMA-ES's means over this many
             last generations (0 or 1: the final mean): on a rough cost the mean
             jitters by about its search spread from one generation to the next.
+        replicates: ``K`` searches run in lock-step (:func:`_searches`): the
+            main one, whose mean is the estimate, and ``K − 1`` on bootstrap
+            resamples of the clips from their own CMA-ES seeds, whose spread is
+            the ``replicates`` σ (the bootstrap of the whole estimator). 1: the
+            main search alone. ``K``× the rollouts, in the same number of
+            rollout calls.
     """
 
     params: tuple = DEFAULT_FREE
@@ -132,6 +138,7 @@ class IdentifySettings:
     t_range: tuple | None = None
     sigma: dict = field(default_factory=dict)
     average_last: int = 6
+    replicates: int = 1
 
 
 @dataclass
@@ -160,6 +167,8 @@ class IdentifyResult:
             ``residual_rms`` says nothing about model fit.
         stop: the CMA-ES termination conditions that fired, name -> value
             (e.g. ``{"maxiter": 40}`` or ``{"tolx": 0.003}``).
+        replicates: (K − 1, d) the bootstrap replicates' estimates
+            (``settings.replicates``); (0, 0) without.
     """
 
     space: ParameterSpace
@@ -175,6 +184,7 @@ class IdentifyResult:
     evaluations: int
     converged: bool = True
     stop: dict = field(default_factory=dict)
+    replicates: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def summary(self) -> dict:
         """JSON-ready ``{"estimate", "std", "prior", ...}`` (vectors as lists)."""
@@ -195,6 +205,7 @@ class IdentifyResult:
             "converged": bool(self.converged),
             "stop": {k: (float(v) if isinstance(v, (int, float, np.number)) else str(v)) for k, v in self.stop.items()},
             "std_sources": {src: self._physical_std(v) for src, v in self.curvature.sources.items()},
+            "replicates": [sp.free_values(r) for r in self.replicates],
         }
 
     def _physical_std(self, std: np.ndarray) -> dict:
@@ -311,50 +322,26 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             clips = clips.subset(choose_informative(clip_information(cost, space.mean0), settings.n_clips, rng))
             cost.set_clips(clips)
         p0, s0 = space.mean0, space.std0
-        opts = {
-            "popsize": settings.popsize, "seed": settings.seed + 1, "verbose": -9,
-            "bounds": [list((space.lower - p0) / s0), list((space.upper - p0) / s0)],
-            "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": settings.tolx, "tolflatfitness": 5,
-        }
         import cma  # here, not at import: it loads matplotlib.pyplot and scipy.stats (1–2 s)
-        es = cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0, opts)
-        history = []
-        evals = 0
-        cost_prior = best_j = float(cost(p0[None])[0])
-        samples_z, samples_j, samples_clip, samples_gen = [], [], [], []
-        while not es.stop():
-            Z = np.array(es.ask())
-            P = p0 + Z * s0
-            br = cost.evaluate(P)
-            J = br.total
-            evals += len(P)
-            es.tell(list(Z), list(J))
-            ok = ~br.diverged.any(axis=1) & (br.penalty == 0)
-            samples_z.append(Z[ok])
-            samples_j.append(J[ok])
-            samples_clip.append(br.per_clip[ok])
-            samples_gen += [len(history)] * int(ok.sum())
-            best_j = min(best_j, float(J.min()))
-            history.append({"generation": len(history) + 1, "best": float(J.min()), "mean_cost": float(J.mean()),
-                            "sigma": float(es.sigma), "mean": (p0 + np.asarray(es.mean) * s0).tolist()})
-            if progress:
-                progress(len(history), best_j)
-        stop = {str(k): v for k, v in dict(es.stop()).items()}
-        # converged: some criterion other than the generation limit fired (or, below, the search
-        # narrowed within the data's own uncertainty)
-        converged = any(k != "maxiter" for k in stop) or not stop
+        cost_prior = float(cost(p0[None])[0])
+        main, reps = _searches(cma, cost, space, settings, cost_prior, progress)
+        es, history, stop, converged = main.es, main.history, main.stop, main.converged
+        evals = sum(r.evals for r in [main, *reps])
+        samples_z, samples_j, samples_clip, samples_gen = main.samples
         # The estimate is CMA-ES's own (rank-weighted) mean: robust to the cost's rough floor, where a
         # least-squares quadratic over the late generations was pulled by far, costly samples (module doc).
-        z_mean = np.asarray(es.mean, dtype=float)
-        if settings.average_last > 1:
-            z_mean = np.mean([(np.asarray(h["mean"]) - p0) / s0 for h in history[-settings.average_last:]], axis=0)
+        z_mean = main.mean_z(space, settings.average_last)
         estimate = space.project(p0 + z_mean * s0)[0][0]
+        rep_estimates = np.array([space.project(p0 + r.mean_z(space, settings.average_last) * s0)[0][0]
+                                  for r in reps]).reshape(-1, space.dim)
         curv = curvature(cost, estimate)  # its centre rollout also gives J at the estimate
         j_est, data = curv.cost, curv.data
         # spread over clip sets: per-clip quadratics over the late generations, resampled over clips
         boot = _clip_set_cov(samples_z, samples_j, samples_clip, samples_gen, z_mean, settings)
         search_std = np.asarray(es.result.stds, dtype=float) * s0
         curv.sources["search"] = search_std
+        if len(rep_estimates) >= 2:
+            curv.sources["replicates"] = rep_estimates.std(axis=0, ddof=1)
         if boot is not None:
             boot_cov = boot * np.outer(s0, s0)
             curv.sources["clip_bootstrap"] = np.sqrt(np.maximum(np.diag(boot_cov), 0.0))
@@ -373,8 +360,111 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
         settings=settings, wall_time=time.perf_counter() - t0, evaluations=evals,
-        converged=converged, stop=stop,
+        converged=converged, stop=stop, replicates=rep_estimates,
     )
+
+
+@dataclass
+class _Search:
+    """One CMA-ES search of :func:`_searches`: its strategy, clip weights and trace."""
+
+    es: object
+    weights: np.ndarray | None  # (N_c,) clip multiplicities; None: every clip once (J as the cost module sums it)
+    history: list = field(default_factory=list)
+    samples: tuple = field(default_factory=lambda: ([], [], [], []))  # z, J, per-clip J, generation of each
+    best: float = np.inf
+    evals: int = 0
+    stop: dict = field(default_factory=dict)
+    converged: bool = False
+    rng_state: tuple = field(default_factory=np.random.get_state)  # see _searches
+
+    def mean_z(self, space: ParameterSpace, average_last: int) -> np.ndarray:
+        """(d,) CMA-ES's mean in its coordinates, averaged over the last ``average_last`` generations."""
+        if average_last > 1 and self.history:
+            return np.mean([(np.asarray(h["mean"]) - space.mean0) / space.std0
+                            for h in self.history[-average_last:]], axis=0)
+        return np.asarray(self.es.mean, dtype=float)
+
+
+def _searches(cma, cost: RolloutCost, space: ParameterSpace, settings: IdentifySettings, cost_prior: float,
+              progress: Callable[[int, float], None] | None) -> tuple[_Search, list[_Search]]:
+    """Run the main search and ``settings.replicates − 1`` bootstrap replicates in lock-step.
+
+    Every generation, the candidates of all searches still running go to the
+    cost module as one batch (one rollout call: on a GPU the replicates fill
+    worlds that would otherwise idle). The main search minimises ``J`` over the
+    chosen clips; replicate ``k`` minimises the same ``J`` with each clip
+    counted as often as a resample of the clips with replacement drew it, from
+    its own CMA-ES seed — the nonparametric bootstrap of the whole estimator
+    (Efron & Tibshirani 1993, ch. 6), rough floor and CMA-ES's path included.
+
+    Args:
+        cma: the ``cma`` module.
+        cost_prior: ``J`` at the prior mean (the best cost before any generation, for ``progress``).
+    Returns:
+        the main search and the replicates (``settings.replicates − 1``, ≥ 0).
+    """
+    p0, s0 = space.mean0, space.std0
+    opts = {
+        "popsize": settings.popsize, "verbose": -9,
+        "bounds": [list((space.lower - p0) / s0), list((space.upper - p0) / s0)],
+        "maxiter": settings.max_gen, "tolfun": 1e-12, "tolx": settings.tolx, "tolflatfitness": 5,
+    }
+    n_clips = len(cost.clips)
+    searches = [_Search(cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0,
+                                                 dict(opts, seed=settings.seed + 1)), None, best=cost_prior)]
+    # the replicates' resamples come from their own generator: the main search is the same with or without them
+    boot = np.random.default_rng([settings.seed, 1])
+    for k in range(1, max(settings.replicates, 1)):
+        w = np.bincount(boot.integers(0, n_clips, size=n_clips), minlength=n_clips).astype(float)
+        searches.append(_Search(cma.CMAEvolutionStrategy(np.zeros(space.dim), settings.sigma0,
+                                                         dict(opts, seed=settings.seed + 1 + 7919 * k)), w))
+    # ``cma`` draws from numpy's global generator (seeded by its ``seed`` option when a strategy is made):
+    # each search keeps its own generator state, swapped in around its calls, so that the searches do not
+    # draw from one stream and the main search samples the same with or without replicates
+    outer = np.random.get_state()
+    while True:
+        active = [s for s in searches if not s.es.stop()]
+        if not active:
+            break
+        Zs = [np.array(_own_rng(s, s.es.ask)) for s in active]
+        br = cost.evaluate(p0 + np.concatenate(Zs) * s0)
+        i = 0
+        for s, Z in zip(active, Zs):
+            rows = slice(i, i + len(Z))
+            i += len(Z)
+            J = br.total[rows] if s.weights is None else (
+                br.per_clip[rows] @ s.weights + br.prior[rows] + br.penalty[rows])
+            s.evals += len(Z)
+            _own_rng(s, s.es.tell, list(Z), list(J))
+            s.best = min(s.best, float(J.min()))
+            s.history.append({"generation": len(s.history) + 1, "best": float(J.min()), "mean_cost": float(J.mean()),
+                              "sigma": float(s.es.sigma), "mean": (p0 + np.asarray(s.es.mean) * s0).tolist()})
+            if s.weights is None:  # the main search's samples feed the clip bootstrap
+                ok = ~br.diverged[rows].any(axis=1) & (br.penalty[rows] == 0)
+                sz, sj, sc, sg = s.samples
+                sz.append(Z[ok])
+                sj.append(J[ok])
+                sc.append(br.per_clip[rows][ok])
+                sg += [len(s.history) - 1] * int(ok.sum())
+                if progress:
+                    progress(len(s.history), s.best)
+    np.random.set_state(outer)
+    for s in searches:
+        s.stop = {str(k): v for k, v in dict(s.es.stop()).items()}
+        # converged: some criterion other than the generation limit fired (or, in identify, the search
+        # narrowed within the data's own uncertainty)
+        s.converged = any(k != "maxiter" for k in s.stop) or not s.stop
+    return searches[0], searches[1:]
+
+
+def _own_rng(search: _Search, fn: Callable, *args):
+    """``fn(*args)`` with numpy's global generator in ``search``'s own state (kept for its next call)."""
+    np.random.set_state(search.rng_state)
+    try:
+        return fn(*args)
+    finally:
+        search.rng_state = np.random.get_state()
 
 
 def _clip_set_cov(samples_z: list, samples_j: list, samples_clip: list, samples_gen: list, z_mean: np.ndarray,
