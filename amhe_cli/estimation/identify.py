@@ -168,7 +168,7 @@ class IdentifyResult:
         stop: the CMA-ES termination conditions that fired, name -> value
             (e.g. ``{"maxiter": 40}`` or ``{"tolx": 0.003}``).
         replicates: (K − 1, d) the bootstrap replicates' estimates
-            (``settings.replicates``); (0, 0) without.
+            (``settings.replicates``); (0, d) without.
     """
 
     space: ParameterSpace
