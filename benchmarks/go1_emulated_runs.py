@@ -5,9 +5,11 @@ Each run starts the emulator of the task on 127.0.0.1 (1 mm / 0.2° mocap noise,
 
     amhe run --task T --target go1 --robot 127.0.0.1:PORT --mocap udp:PORT --mode MODE --arm --json --duration D
 
-both pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a many-core
-machine standing in for several robot laptops); ``--parallel`` pairs run at once
-(default: as many as the CPUs hold). The same seeds run in every mode, so rows
+the client pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a many-core
+machine standing in for several robot laptops), the emulator to ``--emulator-cores`` CPUs
+of its own (default 1: the robot's computer, which a laptop's client never shares; 0 puts
+it on the client's CPUs); ``--parallel`` pairs run at once (default: as many as the CPUs
+hold). The same seeds run in every mode, so rows
 pair. One JSON line per run as it finishes (also appended to ``--jsonl``), then
 one row per (task, mode):
 
@@ -26,6 +28,10 @@ one row per (task, mode):
 
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
                                            [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg]
+    python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
+
+A grid cut off keeps every finished run in ``--jsonl``; ``--table`` prints the table of
+such files (several calls' rows together) without running anything.
 """
 
 from __future__ import annotations
@@ -106,11 +112,14 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
     return out
 
 
-def one_run(task_name: str, mode: str, seed: int, args, cores: list[int] | None) -> dict:
-    pin = ["taskset", "-c", ",".join(map(str, cores))] if cores else []
+def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], list[int]]) -> dict:
+    """One emulator + client pair; ``cores``: the client's CPUs and the emulator's own (empty: the client's)."""
+    client, robot = cores
+    pin = ["taskset", "-c", ",".join(map(str, client))]
+    pin_emu = ["taskset", "-c", ",".join(map(str, robot or client))]
     pose = free_port()
     recording = os.path.join(args.out_dir, f"go1_{task_name}_{mode}_s{seed}.mcap")
-    emu = subprocess.Popen(pin + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
+    emu = subprocess.Popen(pin_emu + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
                                          f"127.0.0.1:{pose}", "--duration", str(args.duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -194,22 +203,34 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=20.0)
-    ap.add_argument("--cores-per-run", type=int, default=2, help="CPUs each emulator + client pair is pinned to")
-    ap.add_argument("--parallel", type=int, default=None, help="pairs at once (default: CPUs // --cores-per-run)")
+    ap.add_argument("--cores-per-run", type=int, default=2, help="CPUs each client is pinned to")
+    ap.add_argument("--emulator-cores", type=int, default=1,
+                    help="CPUs of each emulator's own, the robot's computer (0: it shares the client's)")
+    ap.add_argument("--parallel", type=int, default=None,
+                    help="pairs at once (default: CPUs // (--cores-per-run + --emulator-cores))")
     ap.add_argument("--out-dir", default=".")
     ap.add_argument("--jsonl", default=None, help="append each run's JSON line here as it finishes")
     ap.add_argument("--config", default=None, help="run config YAML passed to amhe run")
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
+    ap.add_argument("--table", nargs="+", default=None, metavar="JSONL",
+                    help="print the table of the runs in these --jsonl files and exit")
     args = ap.parse_args()
+    if args.table:
+        rows = [json.loads(line) for path in args.table for line in open(path) if line.strip()]
+        seen = lambda key: list(dict.fromkeys(r[key] for r in rows))  # noqa: E731 - first-seen order
+        table(rows, seen("task"), seen("mode"))
+        return
     ncpu = len(os.sched_getaffinity(0))
-    parallel = args.parallel or max(1, ncpu // args.cores_per_run)
-    if parallel * args.cores_per_run > ncpu:
-        sys.exit(f"--parallel {parallel} x --cores-per-run {args.cores_per_run} needs {parallel * args.cores_per_run} "
-                 f"CPUs, this machine has {ncpu}")
+    per = args.cores_per_run + args.emulator_cores
+    parallel = args.parallel or max(1, ncpu // per)
+    if parallel * per > ncpu:
+        sys.exit(f"--parallel {parallel} x (--cores-per-run {args.cores_per_run} + --emulator-cores "
+                 f"{args.emulator_cores}) needs {parallel * per} CPUs, this machine has {ncpu}")
     cpus = sorted(os.sched_getaffinity(0))
     slots: Queue = Queue()
-    for k in range(parallel):
-        slots.put(cpus[k * args.cores_per_run:(k + 1) * args.cores_per_run])
+    for k in range(parallel):  # (the client's CPUs, the emulator's own)
+        own = cpus[k * per:(k + 1) * per]
+        slots.put((own[:args.cores_per_run], own[args.cores_per_run:]))
     tasks, modes = args.tasks.split(","), args.modes.split(",")
     jobs = [(t, m, s) for s in range(args.first_seed, args.first_seed + args.seeds) for t in tasks for m in modes]
 
