@@ -611,6 +611,25 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
     np.testing.assert_array_equal(a.traj.ctrl, b.traj.ctrl)
 
 
+def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and_is_refused_off_the_sim():
+    task = get_task("t1", duration=0.4)
+    runs = [run_task(task, None, small_settings("true", latency=0.04)) for _ in range(2)]
+    # the plant ran the last plan's rows while each plan was "computed": four 10 ms rows a cycle + the new row
+    assert len(runs[0].plan_times) == pytest.approx(0.4 / 0.05, abs=1)
+    np.testing.assert_array_equal(runs[0].traj.base_pos, runs[1].traj.base_pos)  # not the machine's speed
+    plain = run_task(task, None, small_settings("true"))  # lock-step: 20 ms a cycle, no lag
+    assert len(plain.plan_times) == pytest.approx(0.4 / 0.02, abs=1)
+    for bad, why in ((dict(latency=0.5), "compute time"), (dict(latency=0.03, realtime=True), "wall clock")):
+        with pytest.raises(AmheError, match=why):
+            small_settings("true", **bad).check()
+    from amhe_cli.control.closed_loop import make_plant
+    plant, closed = make_plant(task, 100.0, 4.0), []
+    plant.close = closed.append  # a plant handed in (a robot's) is closed with the reason, never driven
+    with pytest.raises(AmheError, match="robot has its own"):
+        run_task(task, None, small_settings("true", latency=0.04), plant=plant)
+    assert closed == ["latency needs the sim plant"]
+
+
 def test_mhe_update_reaches_the_planner_with_inertia_following_mass():
     from amhe_cli.control.closed_loop import _to_planner, task_scene_config
     from amhe_cli.estimation.mhe import Update
@@ -701,6 +720,9 @@ def test_run_bad_config(capsys, tmp_path):
     cfg.write_text("planner: {samples: 8, horizon: 20}\n")
     one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--duration", "0",
                         "--out", tmp_path / "r.mcap"), "--duration")
+    for text, named in (("latency: fast\n", "latency"), ("kp: high\n", "kp"), ("latency: 0.5\n", "latency 0.5")):
+        cfg.write_text(text)
+        one_line_error(amhe(capsys, "run", "--mode", "true", "--config", cfg, "--out", tmp_path / "r.mcap"), named)
     assert not (tmp_path / "r.mcap").exists()
 
 

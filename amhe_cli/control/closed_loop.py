@@ -181,6 +181,11 @@ class RunSettings:
             public 55/3 a trot reference barely lifts the feet (1.6 cm of 5)
             and does not move the base open-loop; T1 runs with 55/3 fell in
             3 of 4 tries, with 100/4 (and the default weights) in 1 of 2.
+        latency: lock-step sim only: every plan takes this long [s] as if computed on the wall
+            clock (the plant runs the last plan's rows meanwhile, the plan starts from the
+            latency-compensated state, exactly as with ``realtime``), whatever this machine's
+            speed; None (default): plain lock-step. A wall-clock loop's falls then reproduce on
+            any machine, run after run (docs/fall_prevention.md#the-wall-clock).
     """
 
     mode: str = "adaptive"
@@ -194,6 +199,7 @@ class RunSettings:
     kd: float = 4.0
     mhe_params: tuple = MHE_PARAMS
     reflex: ReflexSettings = field(default_factory=ReflexSettings)
+    latency: float | None = None
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -206,6 +212,12 @@ class RunSettings:
         self.reflex.check()
         if self.cycle < self.planner.dt - 1e-12:
             raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
+        if self.latency is not None:
+            if self.realtime:
+                raise AmheError("latency emulates the wall clock in the lock-step sim: a run on the wall clock "
+                                "(--realtime, --target go1) has its own")
+            if not 0 < self.latency <= MAX_LEAD:
+                raise AmheError(f"latency {self.latency} s: expected a planner compute time in (0, {MAX_LEAD}] s")
 
 
 @dataclass
@@ -362,7 +374,12 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     s.check()
     pdt = s.planner.dt
     if plant is None:
-        plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime, cycle=s.cycle)
+        plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime or s.latency is not None, cycle=s.cycle)
+    elif s.latency is not None:
+        plant.close("latency needs the sim plant")
+        raise AmheError("latency emulates the wall clock in the sim: a robot has its own (drop the latency setting)")
+    # the wall clock itself (a robot, --realtime), not the lock-step sim that emulates one with a fixed latency
+    clocked = plant.realtime and s.latency is None
     floor = plant.scene.config.robot_floor
     reflex = FallReflex(s.reflex, floor=floor)
     safety_status = getattr(plant, "safety_status", None)  # a robot's safety layer, for the view
@@ -465,11 +482,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 idx = np.round((t + pdt * np.arange(n) - prev_start) / pdt).astype(int)
                 state = planner.predict(state, prev_rows[np.clip(idx, 0, len(prev_rows) - 1)])
             plan = planner.plan(state, t + lead, cmd, gait)
+            compute = plan.compute_time if s.latency is None else s.latency  # what the plant waits for
             if len(plan_times):  # the first plan warms caches up: not a latency to expect
-                latency = min(plan.compute_time if latency is None else 0.7 * latency + 0.3 * plan.compute_time,
-                              MAX_LEAD)
+                latency = min(compute if latency is None else 0.7 * latency + 0.3 * compute, MAX_LEAD)
             plan_times.append(plan.compute_time)
-            if plant.realtime and not rate_checked and (len(plan_times) > RATE_CHECK_CYCLES or
+            if clocked and not rate_checked and (len(plan_times) > RATE_CHECK_CYCLES or
                                                         (t >= RATE_CHECK_SECONDS and len(plan_times) > 5)):
                 rate_checked = True
                 hz = 1.0 / max(float(np.median(plan_times[1:])), 1e-9)
@@ -490,7 +507,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],
                                                v[sc.base_qvel[3:]], q[sc.box_qpos[:3]], plan.controls[0], ref0,
                                                {**cmd, "base": None}, box_quat=q[sc.box_qpos[3:]])))
-            fired = plant.execute(plan.controls, pdt, plan.compute_time, lead)
+            fired = plant.execute(plan.controls, pdt, compute, lead)
             prev_rows, prev_start = plan.controls, t + lead
             for t_ev, ev in fired:
                 note(f"t={t_ev:.2f} s: plant event {ev.param} -> {ev.value}")
@@ -507,7 +524,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 t_reach = now
                 break
             if estimator is not None:
-                res = estimator.poll(wait=not plant.realtime and pending and now >= next_update - 1e-9)
+                res = estimator.poll(wait=not clocked and pending and now >= next_update - 1e-9)
                 if res is not None:
                     pending = False
                     if not res.skipped:
@@ -519,7 +536,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 for text in estimator.take_errors():
                     warn(text)
                 if now >= next_update - 1e-9:
-                    if plant.realtime and not estimator.rested(MHE_DUTY):
+                    if clocked and not estimator.rested(MHE_DUTY):
                         mhe_deferred += 1  # the planner's core share comes first on the wall clock
                     elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True

@@ -35,7 +35,8 @@ from amhe_cli.control.reflex import ReflexSettings
 from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "task", "safety", "reflex"}
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "task", "safety",
+               "reflex"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -58,6 +59,14 @@ def load_config(path: str | os.PathLike | None) -> dict:
     return data
 
 
+def _number(config: dict, key: str) -> float:
+    """The config's ``key`` as a float, or an :class:`AmheError` naming the key and what was expected."""
+    try:
+        return float(config[key])
+    except (TypeError, ValueError):
+        raise AmheError(f"config key {key}: {config[key]!r} is not a number") from None
+
+
 def _names(value) -> tuple:
     """``"a,b"`` or ``[a, b]`` -> ``("a", "b")``."""
     items = value.split(",") if isinstance(value, str) else list(value or [])
@@ -68,8 +77,9 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
                  threads: int | None = None, duration: float | None = None) -> tuple[Task, RunSettings]:
     """The task and settings of one run from a config dict (see :func:`load_config`).
 
-    On the wall clock (``realtime``) the planner starts from
-    :data:`~amhe_cli.control.planner.REALTIME_PLANNER`, under the config's ``planner:`` keys.
+    On the wall clock (``realtime``), or a lock-step run that emulates it (the config's
+    ``latency``), the planner starts from :data:`~amhe_cli.control.planner.REALTIME_PLANNER`,
+    under the config's ``planner:`` keys.
 
     Raises:
         AmheError: unknown task, mode, setting or weight name.
@@ -85,11 +95,14 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     task = get_task(task_name, weights=CostWeights.from_dict(config.get("weights") or {}), **overrides)
     mhe = config.get("mhe") or {}
     check_names(mhe, MHESettings.__dataclass_fields__, "mhe setting")
-    planner = {**(REALTIME_PLANNER if realtime else {}), **(config.get("planner") or {})}
+    # the wall clock's planner where a run has one, or emulates one (``latency``)
+    wall = realtime or config.get("latency") is not None
+    planner = {**(REALTIME_PLANNER if wall else {}), **(config.get("planner") or {})}
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(planner),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
                            reflex=ReflexSettings.from_dict(config.get("reflex") or {}),
-                           **{k: float(config[k]) for k in ("kp", "kd", "cycle") if k in config},
+                           **{k: _number(config, k) for k in ("kp", "kd", "cycle", "latency")
+                              if config.get(k) is not None},
                            **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))
     settings.check()
     return task, settings
