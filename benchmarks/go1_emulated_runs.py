@@ -7,8 +7,8 @@ Each run starts the emulator of the task on 127.0.0.1 (1 mm / 0.2° mocap noise,
 
 the client pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a many-core
 machine standing in for several robot laptops), the emulator to ``--emulator-cores`` CPUs
-of its own (default 1: the robot's computer, which a laptop's client never shares; 0 puts
-it on the client's CPUs); ``--parallel`` pairs run at once (default: as many as the CPUs
+of its own (default 1 where the machine has one to spare: the robot's computer, which a
+laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at once (default: as many as the CPUs
 hold). The same seeds run in every mode, so rows
 pair. One JSON line per run as it finishes (also appended to ``--jsonl``), then
 one row per (task, mode):
@@ -204,8 +204,9 @@ def main() -> None:
     ap.add_argument("--first-seed", type=int, default=0)
     ap.add_argument("--duration", type=float, default=20.0)
     ap.add_argument("--cores-per-run", type=int, default=2, help="CPUs each client is pinned to")
-    ap.add_argument("--emulator-cores", type=int, default=1,
-                    help="CPUs of each emulator's own, the robot's computer (0: it shares the client's)")
+    ap.add_argument("--emulator-cores", type=int, default=None,
+                    help="CPUs of each emulator's own, the robot's computer (0: it shares the client's; "
+                         "default 1 where the machine has a CPU to spare, else 0)")
     ap.add_argument("--parallel", type=int, default=None,
                     help="pairs at once (default: CPUs // (--cores-per-run + --emulator-cores))")
     ap.add_argument("--out-dir", default=".")
@@ -221,6 +222,8 @@ def main() -> None:
         table(rows, seen("task"), seen("mode"))
         return
     ncpu = len(os.sched_getaffinity(0))
+    if args.emulator_cores is None:
+        args.emulator_cores = 1 if ncpu > args.cores_per_run else 0
     per = args.cores_per_run + args.emulator_cores
     parallel = args.parallel or max(1, ncpu // per)
     if parallel * per > ncpu:

@@ -487,7 +487,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 latency = min(compute if latency is None else 0.7 * latency + 0.3 * compute, MAX_LEAD)
             plan_times.append(plan.compute_time)
             if clocked and not rate_checked and (len(plan_times) > RATE_CHECK_CYCLES or
-                                                        (t >= RATE_CHECK_SECONDS and len(plan_times) > 5)):
+                                                 (t >= RATE_CHECK_SECONDS and len(plan_times) > 5)):
                 rate_checked = True
                 hz = 1.0 / max(float(np.median(plan_times[1:])), 1e-9)
                 if hz < MIN_REALTIME_HZ:
