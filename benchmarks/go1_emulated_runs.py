@@ -8,10 +8,10 @@ Each run starts the emulator of the task on 127.0.0.1 (1 mm / 0.2° mocap noise,
 the client pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a many-core
 machine standing in for several robot laptops), the emulator to ``--emulator-cores`` CPUs
 of its own (default 1 where the machine has one to spare: the robot's computer, which a
-laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at once (default: as many as the CPUs
-hold). The same seeds run in every mode, so rows
-pair. One JSON line per run as it finishes (also appended to ``--jsonl``), then
-one row per (task, mode):
+laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at
+once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
+One JSON line per run as it finishes (also appended to ``--jsonl``), then one row per
+(task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
@@ -218,8 +218,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.table:
         rows = [json.loads(line) for path in args.table for line in open(path) if line.strip()]
-        seen = lambda key: list(dict.fromkeys(r[key] for r in rows))  # noqa: E731 - first-seen order
-        table(rows, seen("task"), seen("mode"))
+        table(rows, list(dict.fromkeys(r["task"] for r in rows)), list(dict.fromkeys(r["mode"] for r in rows)))
         return
     ncpu = len(os.sched_getaffinity(0))
     if args.emulator_cores is None:

@@ -14,7 +14,7 @@ import pytest
 from helpers import amhe, one_line_error
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_planner, run_task
+from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_plant, make_planner, run_task
 from amhe_cli.errors import AmheError
 from amhe_cli.control.evaluate import run_settings, summarise
 from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, STAND_HEIGHT
@@ -622,7 +622,6 @@ def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and
     for bad, why in ((dict(latency=0.5), "compute time"), (dict(latency=0.03, realtime=True), "wall clock")):
         with pytest.raises(AmheError, match=why):
             small_settings("true", **bad).check()
-    from amhe_cli.control.closed_loop import make_plant
     plant, closed = make_plant(task, 100.0, 4.0), []
     plant.close = closed.append  # a plant handed in (a robot's) is closed with the reason, never driven
     with pytest.raises(AmheError, match="robot has its own"):
