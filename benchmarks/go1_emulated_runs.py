@@ -228,6 +228,7 @@ def main() -> None:
     if parallel * per > ncpu:
         sys.exit(f"--parallel {parallel} x (--cores-per-run {args.cores_per_run} + --emulator-cores "
                  f"{args.emulator_cores}) needs {parallel * per} CPUs, this machine has {ncpu}")
+    os.makedirs(args.out_dir, exist_ok=True)  # every run's recording goes here: a missing folder failed each run
     cpus = sorted(os.sched_getaffinity(0))
     slots: Queue = Queue()
     for k in range(parallel):  # (the client's CPUs, the emulator's own)

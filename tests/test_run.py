@@ -611,6 +611,21 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
     np.testing.assert_array_equal(a.traj.ctrl, b.traj.ctrl)
 
 
+def test_the_wall_clocks_planner_is_lighter_and_quieter_and_a_config_still_overrides_it():
+    """On the wall clock, or a lock-step run that emulates it (``latency``), the planner samples fewer,
+    narrower knots (REALTIME_PLANNER); the lock-step run keeps the defaults; a config's keys win."""
+    _, lock = run_settings("t4", "true", {})
+    assert (lock.planner.samples, lock.planner.refine_loops) == (30, 3)
+    assert lock.planner.noise == pytest.approx((0.03, 0.05, 0.05))
+    for config, realtime in (({}, True), ({"latency": 0.035}, False)):
+        _, wall = run_settings("t4", "true", config, realtime=realtime)
+        assert (wall.planner.samples, wall.planner.refine_loops) == (16, 1)
+        assert wall.planner.noise == pytest.approx((0.015, 0.025, 0.025))
+        assert wall.planner.recovery_noise == lock.planner.recovery_noise  # the recovery's search is not narrowed
+    _, mine = run_settings("t4", "true", {"latency": 0.035, "planner": {"noise": [0.03, 0.05, 0.05]}})
+    assert mine.planner.noise == pytest.approx((0.03, 0.05, 0.05)) and mine.planner.samples == 16
+
+
 def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and_is_refused_off_the_sim():
     task = get_task("t1", duration=0.4)
     runs = [run_task(task, None, small_settings("true", latency=0.04)) for _ in range(2)]

@@ -110,7 +110,15 @@ class PlannerSettings:
 #: knot noise (0.03/0.05/0.05 rad instead of 0.06/0.1/0.1) then kept the robot up in 12 of 14 runs
 #: against the Go1 emulator (T1 adaptive, 20 s, 2 cores each) where the lock-step noise kept it up
 #: in 7 of 14 (benchmarks/go1_emulated_runs.py); that noise is now the lock-step default too.
-REALTIME_PLANNER = {"samples": 16, "refine_loops": 1}
+#: Halving it again on the wall clock (0.015/0.025/0.025 rad) cut the falls of plans 35 ms late
+#: (``latency: 0.035``, T4 true + baseline, seeds 0–15) from 9 to 1 in 32 runs, S_R 66 → 84 %,
+#: mean e_g 0.22 → 0.11 m, where a higher MPPI temperature (0.5, 1.0) cut them to 3 and 2 but
+#: left the box short (S_R 56 %), 48 samples did not help (5 falls in 17) and a wider hip σ made
+#: it worse (14 and 18 falls): the sampled mean's jump from plan to plan, which a late plan
+#: cannot correct, is what tips the trot. On the emulated Go1 (T1/T4, Adaptive and Baseline,
+#: seeds 0–3, 4 CPUs per client) 15 of 16 runs reached the goal with 1 fall, against 11 and 5
+#: at 0.03/0.05/0.05 (docs/fall_prevention.md#the-wall-clock).
+REALTIME_PLANNER = {"samples": 16, "refine_loops": 1, "noise": (0.015, 0.025, 0.025)}
 
 
 def spline_basis(knot_t: np.ndarray, query_t: np.ndarray) -> np.ndarray:
