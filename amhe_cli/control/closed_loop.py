@@ -449,7 +449,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         next_update = s.mhe.window
         pending = False
         phase = None
-        latency = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
+        compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         m = plant.measure()
         while m.t < task.duration - 1e-9:
@@ -474,17 +474,17 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             gait = stand if reflex.active else planner.gait
             state = pscene.full_state(q[None], v[None])[0]
             lead = 0.0
-            if plant.realtime and latency is not None:
+            if plant.realtime and compute_ema is not None:
                 # latency compensation: plan from where the robot will be when the plan arrives,
                 # after the last plan's rows that run meanwhile
-                n = int(np.ceil(latency / pdt))
+                n = int(np.ceil(compute_ema / pdt))
                 lead = n * pdt
                 idx = np.round((t + pdt * np.arange(n) - prev_start) / pdt).astype(int)
                 state = planner.predict(state, prev_rows[np.clip(idx, 0, len(prev_rows) - 1)])
             plan = planner.plan(state, t + lead, cmd, gait)
             compute = plan.compute_time if s.latency is None else s.latency  # what the plant waits for
             if len(plan_times):  # the first plan warms caches up: not a latency to expect
-                latency = min(compute if latency is None else 0.7 * latency + 0.3 * compute, MAX_LEAD)
+                compute_ema = min(compute if compute_ema is None else 0.7 * compute_ema + 0.3 * compute, MAX_LEAD)
             plan_times.append(plan.compute_time)
             if clocked and not rate_checked and (len(plan_times) > RATE_CHECK_CYCLES or
                                                  (t >= RATE_CHECK_SECONDS and len(plan_times) > 5)):

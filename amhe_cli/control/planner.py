@@ -116,8 +116,9 @@ class PlannerSettings:
 #: left the box short (S_R 56 %), 48 samples did not help (5 falls in 17) and a wider hip σ made
 #: it worse (14 and 18 falls); halving only the first knot's σ left 9, only the hip's 10, only
 #: the thigh's and calf's 6: the sampling noise the mean carries over the horizon, which a late
-#: plan cannot correct, is what tips the trot. It pushes slower (its successes took 42 s against 24 s); over T1–T4 at 35 ms it fell in 7 of 80
-#: runs against 17, as often as before on T1 and T2 (1 and 2 in 16), with a lower S_R there.
+#: plan cannot correct, is what tips the trot. It pushes slower (its successes took 42 s against
+#: 24 s); over T1–T4 at 35 ms it fell in 7 of 80 runs against 17, as often as before on T1 and T2
+#: (1 and 2 in 16), with a lower S_R there.
 #: On the emulated Go1 (T1/T4, Adaptive and Baseline, seeds 0–3, 4 CPUs per client) 15 of 16
 #: runs reached the goal with 1 fall, against 11 and 5 at 0.03/0.05/0.05
 #: (docs/fall_prevention.md#the-wall-clock).
