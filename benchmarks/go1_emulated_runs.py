@@ -10,7 +10,9 @@ machine standing in for several robot laptops), the emulator to ``--emulator-cor
 of its own (default 1 where the machine has one to spare: the robot's computer, which a
 laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
-One JSON line per run as it finishes (also appended to ``--jsonl``), then one row per
+One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
+overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
+from the client's own), then one row per
 (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -54,6 +56,7 @@ from amhe_cli.io.reader import inspect_log, read_float_arrays
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
+EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -122,13 +125,15 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     emu = subprocess.Popen(pin_emu + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
                                          f"127.0.0.1:{pose}", "--duration", str(args.duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise],
-                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+                           stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: Queue = Queue()
     reader = threading.Thread(target=lambda: [lines.put(x) for x in emu.stdout], daemon=True)
     reader.start()
     proc = None
     try:
         first = lines.get(timeout=60)
+        while "listening on udp://" not in first:  # a warning on stderr before it
+            first = lines.get(timeout=60)
         port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
         t0 = time.monotonic()
         proc = subprocess.run(pin + AMHE + ["run", "--task", task_name, "--target", "go1", "--robot",
@@ -142,17 +147,22 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         emu.terminate()
         emu.wait(10)
         reader.join(5)
-    events = []
+    events, emulator = [], {}
     while not lines.empty():
-        m = EVENT.search(lines.get())
+        line = lines.get()
+        m = EVENT.search(line)
         if m:
             events.append((m.group(1), float(m.group(2)), float(m.group(4))))
+        m = EMULATOR_STATS.search(line)
+        if m:  # the emulator's own timing: a state gap past the client's watchdog is the rig's, not the client's
+            emulator = {"overruns": int(m.group(1)), "longest_state_gap_ms": float(m.group(2))}
     try:
         res = json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, json.JSONDecodeError, AttributeError):
         res = {"failure": proc.stderr.strip().splitlines()[-1] if proc and proc.stderr.strip() else "no output"}
     text = f"{res.get('failure', '')} {res.get('reason', '')}"
     res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
+               emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
     meta = run_meta(recording)
