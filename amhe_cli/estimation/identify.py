@@ -37,7 +37,7 @@ resample floored its curvature positive and was held within 3 sample σ of the
 mean, and the search spread was a floor, not a term: along a flat direction the
 floored step ran to the bound and dragged the mass with it, so the mass's σ was
 3× the cloud CMA-ES left in every log, 4–10× the error on the clean ones (RMS
-of (estimate − truth)/σ over 8 seeds: ``const_a`` 0.10, ``mismatch_b`` 0.25,
+of (estimate − truth)/σ over 8 seeds: ``const_a`` 0.10, ``mismatch_b`` 0.23,
 the 5 kg example 0.14; docs/benchmarks.md has the table with this one's).
 What no σ from the log sees is a bias every clip shares (a model unlike the
 log's robot, the motion capture's smoothing): the residual rms reported beside
