@@ -34,7 +34,7 @@ from amhe_cli.model.scene import (
 )
 from amhe_cli.io.trajectory import GO1_JOINTS
 from amhe_cli.estimation.uncertainty import clip_information, curvature
-from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley
+from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley, unresolved_variance
 
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
 #: the standing robot's head front is at x ≈ 0.28 m; box half-size 0.19 m; 1 cm gap
@@ -654,6 +654,19 @@ def test_bootstrap_spread_is_the_clip_sets_own_along_what_they_resolve_and_none_
     # a bound holds every minimiser within that many sample σ of the centre
     tight = bootstrap_minima(Z, K, v, prior_weight=0.0, rng=np.random.default_rng(0), bound=0.2)
     assert np.all(np.abs(tight - v.centre) <= 0.2 * v.scale + 1e-12)
+
+
+def test_unresolved_variance_gives_a_direction_no_clip_curves_the_clouds_extent_and_a_resolved_one_none():
+    rng = np.random.default_rng(2)
+    Z = rng.normal(scale=[0.1, 0.2], size=(80, 2))
+    J = 50.0 * Z[:, 0] ** 2 + 1e-4 * rng.normal(size=80)  # z0 curved, z1 flat
+    v = fit_valley(Z, J, np.zeros(2))
+    var = unresolved_variance(v, prior_weight=0.0, bound=3.0)
+    assert var[1] == pytest.approx((3.0 * v.scale[1]) ** 2, rel=1e-3)
+    assert var[0] < 1e-6 * (3.0 * v.scale[0]) ** 2
+    # curved along both (z1 a tenth as stiff: above the 1 % line), nothing is left unresolved
+    v2 = fit_valley(Z, J + 5.0 * Z[:, 1] ** 2, np.zeros(2))
+    assert np.all(unresolved_variance(v2, prior_weight=0.0) == 0.0)
 
 
 # --------------------------------------------------------------------------- plant
