@@ -355,8 +355,8 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             # tolx from firing): more generations would move the estimate by less than its σ
             converged = True
             stop["search_within_sigma"] = True
-        # where CMA-ES stopped inside its own spread is a second, independent error: the clip bootstrap
-        # holds a direction its clips do not resolve at the centre, and the search's spread is what covers it
+        # where CMA-ES stopped inside its own spread (which draw of the rough floor ended the search) is an error
+        # of its own, beside the clip sets': a term, not a floor (docs/benchmarks.md, "Does the stated σ ...")
         curv = with_covariance(curv, curv.cov + np.diag(search_std ** 2))
     return IdentifyResult(
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,

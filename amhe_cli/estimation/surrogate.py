@@ -18,8 +18,7 @@ generations reads the valley at the scale CMA-ES explored:
   reruns show (:func:`bootstrap_minima`). Each resample moves only along the
   directions its clips resolve (curvature at least :data:`RESOLVED` of the
   stiffest); along the others it stays at the centre, and
-  :func:`~amhe_cli.estimation.identify.identify` adds CMA-ES's own search
-  spread for them.
+  :func:`unresolved_variance` gives them the extent of the cloud instead.
 
 All work happens in standardised coordinates ``u = (z - centre) / scale``.
 """
@@ -165,16 +164,16 @@ def bootstrap_minima(Z: np.ndarray, per_clip: np.ndarray, valley: Valley, prior_
     largest, :func:`_resolved_step`), held within ``bound`` sample standard
     deviations; along an unresolved direction it stays at the centre, so the
     spread says what the clip sets tell and nothing about a direction they do
-    not (:func:`~amhe_cli.estimation.identify.identify` adds the search's
-    spread for that). The version before flooring every eigenvalue positive
+    not (:func:`unresolved_variance` is that part). The version before, flooring every eigenvalue positive,
     took a huge step along a flat direction, which the bound held at the edge
     of the cloud, and through the eigenvectors' tilt it dragged the resolved
     coordinates there too: measured over 8 seeds on five logs (2 cores,
     ``benchmarks/identify_accuracy.py``), the mass's spread was the bound
     times the cloud's in every log (σ proportional to ``bound``), 3–10× the
     seed-to-seed error on the clean logs; this one's RMS of (estimate −
-    truth)/σ was 0.45–1.07 on the three unbiased logs, as the bootstrap of the
-    whole estimator (``--replicates``) measured on a GPU (0.57–1.08).
+    truth)/σ, computed afterwards from the same runs' samples, was 0.72–1.50
+    on the three logs without a bias all clips share, near what the bootstrap
+    of the whole estimator (``--replicates``) read on a GPU (0.57–1.08).
 
     Args:
         Z: (n, d) evaluated points (optimiser coordinates: prior mean at 0, prior σ = 1).
