@@ -390,3 +390,30 @@ def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():
     with MovingHorizonEstimator(scene, space, MHESettings(iters=1, samples=3), nthread=1) as mhe:
         assert not mhe.update(traj, float(traj.t[-1])).skipped
         assert mhe._cost.weights.sigma == w.sigma
+
+
+def test_identify_adds_the_friction_a_noisy_clip_start_cannot_tell_and_a_clean_log_gets_none(tmp_path):
+    """A noisy log's clips start from a smoothed velocity off by σ_v: μ's σ holds 2 σ_v / (g T) for the clips'
+    mean horizon T (no resample or search spread sees that error); a clean log's σ has no such term."""
+    from amhe_cli.estimation.identify import IdentifySettings, identify
+    from amhe_cli.estimation.uncertainty import sensing_friction_std
+    from amhe_cli.io.smoothing import velocity_noise
+    assert sensing_friction_std(0.024, 0.15) == pytest.approx(2 * 0.024 / (9.81 * 0.15))
+    assert sensing_friction_std(0.0, 0.15) == 0.0
+    with pytest.raises(ValueError, match="horizon"):
+        sensing_friction_std(0.02, 0.0)
+    _, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
+    scene = Scene(SceneConfig())
+    settings = IdentifySettings(params=("box_mass", "box_friction"), n_clips=8, max_gen=4, popsize=6, candidates=1)
+    for traj, noisy in ((read, True), (clean, False)):
+        space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+        res = identify(traj, scene, space, settings, nthread=1)
+        src = res.curvature.sources
+        if noisy:
+            want = sensing_friction_std(velocity_noise(traj.meta, "box", traj.dt),
+                                        float(np.mean(res.clips.horizon)) * traj.dt)
+            assert want > 0.01
+            assert src["sensing"][1] == pytest.approx(want) and src["sensing"][0] == 0.0
+            assert res.curvature.std[1] >= want
+        else:
+            assert "sensing" not in src

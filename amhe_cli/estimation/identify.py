@@ -39,10 +39,12 @@ floored step ran to the bound and dragged the mass with it, so the mass's σ was
 3× the cloud CMA-ES left in every log, 4–10× the error on the clean ones (RMS
 of (estimate − truth)/σ over 8 seeds: ``const_a`` 0.10, ``mismatch_b`` 0.23,
 the 5 kg example 0.14; docs/benchmarks.md has the table with this one's).
-What no σ from the log sees is a bias every clip shares (a model unlike the
-log's robot, the motion capture's smoothing): the residual rms reported beside
-it is the flag for that. The candidates are reported beside it
-(``std_sources`` in ``--json``).
+On a log with pose noise, friction's σ also holds what a clip's smoothed
+initial velocity cannot tell (:func:`~amhe_cli.estimation.uncertainty.sensing_friction_std`,
+``std_sources.sensing``). What no σ from the log sees is a bias every clip
+shares (a model unlike the log's robot): the residual rms reported beside it
+is the flag for that. The candidates are reported beside it (``std_sources``
+in ``--json``).
 
 CMA-ES searches in prior-σ units, ``z = (p - p0) / σ_prior``, so a kilogram and a
 friction coefficient are steps of comparable meaning.
@@ -63,7 +65,8 @@ from amhe_cli.model.scene import Scene
 from amhe_cli.io.smoothing import velocity_noise
 from amhe_cli.io.trajectory import Trajectory
 from amhe_cli.estimation.surrogate import bootstrap_minima, fit_valley, unresolved_variance
-from amhe_cli.estimation.uncertainty import Curvature, clip_information, curvature, with_covariance
+from amhe_cli.estimation.uncertainty import (Curvature, clip_information, curvature, sensing_friction_std,
+                                             with_covariance)
 
 
 @dataclass
@@ -358,6 +361,13 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         # where CMA-ES stopped inside its own spread (which draw of the rough floor ended the search) is an error
         # of its own, beside the clip sets': a term, not a floor (docs/benchmarks.md, "Does the stated σ ...")
         curv = with_covariance(curv, curv.cov + np.diag(search_std ** 2))
+        # a noisy log's clips start from a smoothed velocity whose error no resample or search sees
+        sense = np.zeros(space.dim)
+        sense[space.slices().get("box_friction", slice(0, 0))] = sensing_friction_std(
+            velocity_noise(traj.meta, "box", traj.dt), float(np.mean(clips.horizon)) * traj.dt)
+        if np.any(sense > 0):
+            curv.sources["sensing"] = sense
+            curv = with_covariance(curv, curv.cov + np.diag(sense ** 2))
     return IdentifyResult(
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
