@@ -33,6 +33,7 @@ GIL around the socket calls). The thread also asks for real-time scheduling
 
 from __future__ import annotations
 
+import gc
 import sys
 import threading
 import time
@@ -142,9 +143,18 @@ class Relay:
 
     # -- the caller's side ----------------------------------------------------
     def start(self) -> None:
-        """Start the relay thread (phase ``wait``: damping packets until the robot answers)."""
+        """Start the relay thread (phase ``wait``: damping packets until the robot answers).
+
+        Everything the process holds so far (modules, models, the planner) is
+        moved out of the cyclic garbage collector's reach (``gc.freeze``) until
+        :meth:`stop`: a full collection stops every thread, the relay's too, for
+        as long as it walks the heap — 70 ms in a T1 run against the emulator
+        before (its last full collection; a command gap past the 20–50 ms a
+        robot's bridge takes for a lost link).
+        """
         self._t0 = time.monotonic()
         sys.setswitchinterval(SWITCH_INTERVAL)
+        gc.freeze()
         self._thread = threading.Thread(target=self._loop, name="amhe-relay", daemon=True)
         self._thread.start()
 
@@ -196,6 +206,7 @@ class Relay:
                 break
             time.sleep(0.0005)
         sys.setswitchinterval(self._switch)
+        gc.unfreeze()
 
     # -- the relay thread -------------------------------------------------------
     def _set_phase(self, phase: str, note: str = "") -> None:
@@ -260,8 +271,12 @@ class Relay:
             except Exception as exc:  # noqa: BLE001 - a broken socket is a lost link
                 state = None
                 self._trip(f"robot link failed: {exc}")
+            # the watchdog's clock is read after the receive, not at the top of the period: a stall in between
+            # (the garbage collector stopping every thread for 50 ms) delivers the states that queued meanwhile,
+            # and stamping them with the stale time made the next empty receive look like 50 ms of silence
+            received = time.monotonic()
             if state is not None:
-                self.state, self.state_time = state, now
+                self.state, self.state_time = state, received
                 self.streaming.set()
                 if self.phase == "wait":
                     if self.dry_run:
@@ -276,8 +291,8 @@ class Relay:
                         self.safety.check(state.rpy, state.tau_est, state.dq)
                     except SafetyTrip as trip:
                         self._trip(str(trip))
-            elif self.phase not in ("wait", "damp") and now - self.state_time > s.state_timeout:
-                self._trip(f"no valid robot state for {1e3 * (now - self.state_time):.0f} ms (link lost)")
+            elif self.phase not in ("wait", "damp") and received - self.state_time > s.state_timeout:
+                self._trip(f"no valid robot state for {1e3 * (received - self.state_time):.0f} ms (link lost)")
             if self.phase in ("wait", "damp"):
                 cmd, q_sent, mode = damping, None, MODE_DAMPING
             else:
