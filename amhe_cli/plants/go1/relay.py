@@ -31,7 +31,7 @@ GIL around the socket calls). The thread also asks for real-time scheduling
 (:func:`raise_thread_priority`) where the OS allows it, and the heap the
 process built before the relay started is frozen out of the garbage
 collector's full passes while it runs (:meth:`Relay.start`): a full pass stops
-every thread, the relay's included (49–54 ms mid-run in a T3 client before).
+every thread, the relay's included (48–54 ms mid-run in a T3 client before).
 """
 
 from __future__ import annotations
