@@ -633,7 +633,7 @@ def test_fit_valley_recovers_a_quadratic_minimum():
 def test_bootstrap_spread_is_the_clip_sets_own_along_what_they_resolve_and_none_along_what_they_do_not():
     """Clip k pulls z0 toward 0.02 k (convex) and bends z1 the wrong way (a saddle, as a fit over a rough floor can):
     the bootstrap's z0 spread is that of the clips' own minima resampled, and z1, which no clip resolves, stays at
-    the centre (identify adds the search's spread for it), where flooring the saddle threw it to the cloud's edge."""
+    the centre (unresolved_variance gives it the cloud's extent), where flooring the saddle threw it to the edge."""
     rng = np.random.default_rng(1)
     Z = rng.normal(scale=0.1, size=(80, 2))
     K = np.stack([(Z[:, 0] - 0.02 * k) ** 2 - 0.5 * Z[:, 1] ** 2 + 1e-3 * rng.normal(size=80) for k in range(8)], 1)

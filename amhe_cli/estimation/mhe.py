@@ -39,6 +39,7 @@ from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.device import make_backend
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step
+from amhe_cli.estimation.uncertainty import sensing_friction_std
 from amhe_cli.model.scene import Scene
 from amhe_cli.io.smoothing import velocity_noise
 from amhe_cli.io.trajectory import Trajectory
@@ -51,7 +52,6 @@ DEFAULT_PULL = {"box_mass": 0.5, "box_inertia": 0.1, "box_friction": 0.05, "robo
 #: Friction resolution [-] a clip must reach against the noise of its recorded initial velocity, in
 #: :data:`CLIP_SIGMAS` standard deviations (:func:`noise_clip`).
 CLIP_MU, CLIP_SIGMAS = 0.05, 2.0
-GRAVITY = 9.81
 
 
 def noise_clip(traj: Trajectory) -> float:
@@ -75,7 +75,8 @@ def noise_clip(traj: Trajectory) -> float:
     seed at 150 steps, 0.055–0.107 at 300.
     """
     sigma_v = velocity_noise(traj.meta, "box", traj.dt)
-    return 2.0 * CLIP_SIGMAS * sigma_v / (CLIP_MU * GRAVITY)
+    # the clip over which friction's resolution (``sensing_friction_std``, ∝ 1/T) falls to CLIP_MU / CLIP_SIGMAS
+    return CLIP_SIGMAS * sensing_friction_std(sigma_v, 1.0) / CLIP_MU
 
 
 @dataclass

@@ -118,6 +118,13 @@ def fit_valley(Z: np.ndarray, J: np.ndarray, centre: np.ndarray, bound: float = 
     return Valley(centre, scale, centre + scale * u, H, r2, convex)
 
 
+def _principal(H: np.ndarray, resolved: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eigenvalues (d,), eigenvectors (d, d) of the symmetrised ``H``, and (d,) bool: resolved, i.e. an
+    eigenvalue above ``resolved`` × the largest (flat and concave directions are not)."""
+    w, V = np.linalg.eigh(0.5 * (H + H.T))
+    return w, V, w > resolved * max(float(w.max()), 1e-300)
+
+
 def _resolved_step(g: np.ndarray, H: np.ndarray, bound: float, resolved: float) -> np.ndarray:
     """Minimiser of ``g·u + ½ uᵀ H u`` within the directions ``H`` resolves, clipped to ``|u_i| ≤ bound``.
 
@@ -125,8 +132,7 @@ def _resolved_step(g: np.ndarray, H: np.ndarray, bound: float, resolved: float) 
     least ``resolved`` × the largest; along the others (flat, or concave where a
     fit over a rough floor bends the wrong way) the step is zero.
     """
-    w, V = np.linalg.eigh(0.5 * (H + H.T))
-    keep = w > resolved * max(float(w.max()), 1e-300)
+    w, V, keep = _principal(H, resolved)
     u = -(V[:, keep] / w[keep]) @ (V[:, keep].T @ g)
     return np.clip(u, -bound, bound)
 
@@ -147,10 +153,8 @@ def unresolved_variance(valley: Valley, prior_weight: float, bound: float = 3.0,
     floored step along such a direction was held at the bound and, through
     the eigenvectors' tilt, took the resolved coordinates there too.
     """
-    H = valley.hessian_u + prior_weight * 2.0 * np.diag(valley.scale ** 2)
-    w, V = np.linalg.eigh(0.5 * (H + H.T))
-    loose = w <= resolved * max(float(w.max()), 1e-300)
-    share = (V[:, loose] ** 2).sum(axis=1)
+    _, V, keep = _principal(valley.hessian_u + prior_weight * 2.0 * np.diag(valley.scale ** 2), resolved)
+    share = (V[:, ~keep] ** 2).sum(axis=1)
     return share * (bound * valley.scale) ** 2
 
 

@@ -121,8 +121,8 @@ def sensing_friction_std(velocity_sigma: float, horizon: float, gravity: float =
     ``velocity_sigma`` σ_v [m/s] (the log's pose noise through its smoothing,
     :func:`~amhe_cli.io.smoothing.velocity_noise`); over T that moves the box
     by σ_v·T, as a friction off by Δμ does by ½·Δμ·g·T² — so one clip reads μ
-    no closer than ``2 σ_v / (g T)`` (the relation
-    :func:`~amhe_cli.estimation.mhe.noise_clip` sizes the MHE's clips by).
+    no closer than ``2 σ_v / (g T)`` (:func:`~amhe_cli.estimation.mhe.noise_clip`
+    sizes the MHE's clips by it).
     The smoothing's error is common to overlapping clips and the same in every
     seed, so it does not average down over clips: neither the clip bootstrap
     nor the search spread sees it. *Measured* on ``noisy_b`` (σ_v 0.024 m/s,
