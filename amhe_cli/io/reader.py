@@ -16,7 +16,9 @@ decoding) to describe a log for ``amhe probe``.
 
 from __future__ import annotations
 
+import gc
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +52,24 @@ __all__ = [
 # --------------------------------------------------------------------------- #
 # Public API
 # --------------------------------------------------------------------------- #
+
+
+@contextmanager
+def _collector_paused():
+    """Python's cyclic garbage collector off while a log's messages are decoded and unpacked.
+
+    A 20 s log decodes into some 10⁵ small objects, none of them in a reference cycle, and each
+    collection walks all that are still held: measured on ``const_a`` (32 k messages), the collector
+    was 40 % of :func:`read_log` (1.15 s with it, 0.69 s without). Turned back on afterwards (if it
+    was on); reference counting frees everything as usual meanwhile.
+    """
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
 
 
 def read_log(
@@ -110,7 +130,7 @@ def read_log(
     if smooth != "auto" and (not isinstance(smooth, (int, np.integer)) or smooth < 0):
         raise AmheError(f"smooth must be 'auto' or a non-negative number of samples, got {smooth!r}")
 
-    with _open_log(path) as log:
+    with _open_log(path) as log, _collector_paused():
         roles, problems = assign_roles(log.topics, topics)
         for role in REQUIRED_ROLES:
             if role in problems:
