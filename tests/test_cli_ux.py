@@ -256,6 +256,22 @@ def test_amhe_help_lists_each_commands_own_line_without_importing_them():
         assert cli.get_command(None, name).get_short_help_str(limit=200) == line, name
 
 
+def test_replaying_a_clean_log_imports_neither_plotting_nor_signal_processing(tmp_path):
+    """``amhe mhe-replay`` on a clean log without --plot leaves matplotlib, scipy.signal and scipy.stats
+    unimported (about a second of a short command): they load where a figure is drawn or a noisy
+    pose stream smoothed. (``identify`` imports ``cma``, which loads matplotlib and scipy.stats itself.)"""
+    from amhe_cli.estimation.problem import example_logs
+
+    log = example_logs()[0]  # a clean simulated log
+    code = ("import sys; from amhe_cli.cli import main\n"
+            f"main(['mhe-replay', {str(log)!r}, '--samples', '4', '--iters', '1', '--max-steps', '50', "
+            f"'--out', {str(tmp_path / 'e.csv')!r}, '--json', '--device', 'cpu'])\n"
+            "print(sorted(m for m in ('matplotlib', 'scipy.signal', 'scipy.stats') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
+
+
 @pytest.mark.parametrize("name", ["identify", "probe", "mhe-replay", "run", "evaluate"])
 def test_every_option_has_help_and_no_outside_document(name):
     cmd = _commands()[name]

@@ -8,13 +8,19 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+from amhe_cli.errors import AmheError
 
-from amhe_cli.errors import AmheError  # noqa: E402
+
+def _pyplot():
+    """``matplotlib.pyplot`` on the Agg backend, imported when a figure is drawn (half a second that
+    the commands which check a ``--plot`` name but draw nothing need not pay)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
 
 
 def _check_png(path) -> Path:
@@ -99,6 +105,7 @@ def plot_identify(path, result, cost_rollout, traj=None, truth: dict | None = No
     Raises:
         AmheError: ``path`` does not end in .png or its folder does not exist.
     """
+    plt = _pyplot()
     path = _check_png(path)
     sp, clips = result.space, result.clips
     scene = sp.scene
@@ -225,6 +232,7 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
         truth: a :class:`~amhe_cli.estimation.replay.TruthSeries` or None.
         skipped: (n,) bool, updates whose window held no information (marked).
     """
+    plt = _pyplot()
     path = _check_png(path)
     names = [h for h in head[1:] if not h.endswith(("_std", "_window"))]
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 2.6 * len(names)), sharex=True, squeeze=False,
@@ -270,6 +278,7 @@ def plot_run(path, result, task) -> Path:
     Raises:
         AmheError: ``path`` does not end in .png or its folder does not exist.
     """
+    plt = _pyplot()
     path = _check_png(path)
     with plt.rc_context({"font.size": 11, "axes.titlesize": 12, "axes.labelsize": 11, "legend.fontsize": 9.5,
                          "xtick.labelsize": 10, "ytick.labelsize": 10}):
@@ -324,6 +333,7 @@ def plot_ablation(path, table: list[dict], sweeps: list[tuple[str, list]], defau
         sweeps: (key, values) in the order swept.
         defaults: key -> the value the run config leaves it at.
     """
+    plt = _pyplot()
     path = Path(path)
     fig, axes = plt.subplots(1, len(sweeps), figsize=(4.6 * len(sweeps), 3.8), squeeze=False)
     twins = []

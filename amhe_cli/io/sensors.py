@@ -22,9 +22,8 @@ the summary and the belief's provenance; the estimator uses the noise for
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import median_abs_deviation
 
-from amhe_cli.io.smoothing import noise_sigma
+from amhe_cli.io.smoothing import noise_sigma, robust_sigma
 from amhe_cli.io.unpack import _Series
 
 
@@ -52,7 +51,7 @@ def stream_report(s: _Series) -> dict:
     out.update({
         "rate_hz": round(1e9 / fit[0], 3),
         "dropped_fraction": round(max(0.0, 1.0 - n / expected), 4),
-        "jitter_ms": round(float(median_abs_deviation(t - np.polyval(fit, k), scale="normal")) * 1e-6, 4),
+        "jitter_ms": round(float(robust_sigma(t - np.polyval(fit, k))) * 1e-6, 4),
         "latency_ms": None if s.latency_ns is None else round(s.latency_ns * 1e-6, 3),
     })
     f = s.fields
