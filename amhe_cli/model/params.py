@@ -288,31 +288,66 @@ class ParameterSpace:
         return Q, moved
 
     # -- writing into models ------------------------------------------------
+    #: The ``MjModel`` fields :meth:`model_fields` returns (every field the parameters set directly;
+    #: ``mj_setConst`` derives ``body_subtreemass``, ``body_invweight0``, ``dof_invweight0`` and
+    #: ``actuator_acc0`` from them).
+    MODEL_FIELDS = ("body_mass", "body_inertia", "pair_friction", "geom_friction", "actuator_gainprm",
+                    "actuator_biasprm")
+
+    def model_fields(self, P: np.ndarray) -> dict[str, np.ndarray]:
+        """The model fields of ``B`` candidates at once, as :meth:`write` sets them (before ``mj_setConst``).
+
+        Args:
+            P: (B, d) candidates (flat coordinates of this space).
+        Returns:
+            field -> (B, *shape of the field) float64 arrays for every name in :data:`MODEL_FIELDS`:
+            the scene model's field with the parameters' entries replaced — box mass and inertia
+            [kg, kg·m²], box–floor pair friction (sliding, both tangential directions), robot geom
+            friction (robot–box, under MuJoCo's max rule), and the servo gains and trunk mass only
+            where ``robot_kp``, ``robot_kd``, ``trunk_payload`` are free (else the scene's own, so
+            motors replaying torques stay motors). The derived constants are not included: the CPU
+            backend gets them from ``mj_setConst`` in :meth:`write`, the Warp backend from MuJoCo
+            Warp's ``set_const`` on the device.
+        """
+        P = np.atleast_2d(np.asarray(P, dtype=float))
+        B, m, b = len(P), self.scene.model, self.scene.box_body
+
+        def value(name: str) -> np.ndarray:  # (B, size) physical values, the prior where not free
+            if name in self._slices:
+                return P[:, self._slices[name]]
+            return np.broadcast_to(self.prior_values[name], (B, PARAMETERS[name].size))
+
+        out = {f: np.repeat(np.asarray(getattr(m, f), dtype=float)[None], B, axis=0) for f in self.MODEL_FIELDS}
+        mass = value("box_mass")[:, 0]
+        ratio = P[:, self._slices["box_inertia"]] if "box_inertia" in self._slices else np.ones((B, 3))
+        out["body_mass"][:, b] = mass
+        out["body_inertia"][:, b] = ratio * self._inertia_base(mass)
+        mu = value("box_friction")
+        pairs = np.asarray(self.scene.region_pairs)
+        out["pair_friction"][:, pairs, 0] = mu
+        out["pair_friction"][:, pairs, 1] = mu
+        out["geom_friction"][:, self._robot_geoms, 0] = value("robot_box_friction")
+        # the robot's servo and trunk are touched only where they are free: the scene's own
+        # actuators (position servos, or motors replaying torques) stay as they were built
+        if "robot_kp" in self._slices:
+            kp = self._kp0[None] * (value("robot_kp") / self._kp0.mean())
+            out["actuator_gainprm"][:, :, 0] = kp
+            out["actuator_biasprm"][:, :, 1] = -kp
+        if "robot_kd" in self._slices:
+            out["actuator_biasprm"][:, :, 2] = -self._kd0[None] * (value("robot_kd") / self._kd0.mean())
+        if "trunk_payload" in self._slices:
+            out["body_mass"][:, self._trunk] = self._trunk_mass + value("trunk_payload")[:, 0]
+        return out
+
     def write(self, model: mujoco.MjModel, vec: np.ndarray) -> None:
-        """Write all parameter values of ``vec`` (d,) into ``model`` in place.
+        """Write all parameter values of ``vec`` (d,) into ``model`` in place (:meth:`model_fields`).
 
         Calls ``mujoco.mj_setConst`` after inertial changes: without it
         ``body_invweight0`` stays stale and the contact solver behaves as if
         the mass were the old one (docs/reference.md#mujoco).
         """
-        vals = self.values(vec)
-        b = self.scene.box_body
-        model.body_mass[b] = vals["box_mass"]
-        model.body_inertia[b] = vals["box_inertia"]
-        mu = vals["box_friction"]
-        model.pair_friction[self.scene.region_pairs, 0] = mu
-        model.pair_friction[self.scene.region_pairs, 1] = mu
-        model.geom_friction[self._robot_geoms, 0] = vals["robot_box_friction"]
-        # the robot's servo and trunk are touched only where they are free: the scene's own
-        # actuators (position servos, or motors replaying torques) stay as they were built
-        if "robot_kp" in self._slices:
-            kp = self._kp0 * (vals["robot_kp"] / self._kp0.mean())
-            model.actuator_gainprm[:, 0] = kp
-            model.actuator_biasprm[:, 1] = -kp
-        if "robot_kd" in self._slices:
-            model.actuator_biasprm[:, 2] = -self._kd0 * (vals["robot_kd"] / self._kd0.mean())
-        if "trunk_payload" in self._slices:
-            model.body_mass[self._trunk] = self._trunk_mass + vals["trunk_payload"]
+        for f, v in self.model_fields(vec).items():
+            getattr(model, f)[...] = v[0]
         data = self._scratch.get(id(model))
         if data is None:
             data = self._scratch[id(model)] = mujoco.MjData(model)
