@@ -136,22 +136,37 @@ def test_a_parameter_writing_an_unbatched_field_is_refused(scene):
         rw.check_space(Solref(scene, ("box_mass",)))
 
 
-def test_candidate_fields_carry_mj_setconst_per_candidate(scene):
-    """The derived constants differ per candidate and equal what the CPU backend's models hold."""
-    space = ParameterSpace(scene, ("box_mass", "box_friction", "trunk_payload"))
-    P = np.array([space.vector({"box_mass": m, "box_friction": mu, "trunk_payload": t})
-                  for m, mu, t in ((2.0, 0.3, 0.0), (9.0, 0.7, 1.5))])
-    fields = rw.candidate_fields(space, P, [copy.copy(scene.model) for _ in range(2)])
+def test_candidate_fields_are_what_write_sets_for_every_candidate(scene):
+    """The per-world fields: for each candidate, every batched field (all parameters free, servo gains and
+    trunk payload included; mj_setConst's derived constants too) equals, to the bit, what the CPU
+    backend's model holds after ``write``."""
+    space = ParameterSpace(scene, tuple(PARAMETERS))
+    rng = np.random.default_rng(5)
+    P = space.project(space.mean0 + rng.normal(0, 0.5, (4, space.dim)) * space.std0)[0]
+    models = [copy.copy(scene.model) for _ in P]
+    datas = [mujoco.MjData(m) for m in models]
+    fields = rw.candidate_fields(space, P, models, datas)
+    assert set(fields) == {f for f in rw.BATCHED_FIELDS if getattr(scene.model, f).size}
     b = scene.box_body
-    assert fields["body_mass"][:, b].tolist() == [2.0, 9.0]
-    assert fields["pair_friction"][:, 0, 0].tolist() == [0.3, 0.7]
-    assert fields["body_invweight0"][0, b, 0] > 3 * fields["body_invweight0"][1, b, 0]  # 1/m
-    assert not np.allclose(fields["dof_invweight0"][0], fields["dof_invweight0"][1])  # the payload moves the robot's
-    for k in range(2):
+    assert len(set(fields["body_mass"][:, b])) == 4  # one value per candidate
+    for k in range(len(P)):
         m = copy.copy(scene.model)
         space.write(m, P[k])
-        for f in ("body_invweight0", "dof_invweight0", "body_subtreemass", "actuator_acc0"):
-            np.testing.assert_array_equal(fields[f][k], getattr(m, f))
+        for f, v in fields.items():
+            np.testing.assert_array_equal(v[k], getattr(m, f), err_msg=f)
+    # the raised zero friction (friction_floor) applies to every candidate
+    low, _ = rw.friction_floor(scene.model)
+    raised = rw.candidate_fields(space, P, models, datas, low)
+    assert np.all(raised["geom_friction"][:, low] >= rw.MJ_MINMU)
+
+
+def test_model_fields_leave_the_scenes_own_actuators_where_gains_are_not_free(scene):
+    space = ParameterSpace(scene, ("box_mass", "box_friction"))
+    f = space.model_fields(np.array([[2.0, 0.3], [9.0, 0.7]]))
+    np.testing.assert_array_equal(f["actuator_gainprm"][1], scene.model.actuator_gainprm)
+    np.testing.assert_array_equal(f["actuator_biasprm"][0], scene.model.actuator_biasprm)
+    assert f["body_mass"][:, scene.box_body].tolist() == [2.0, 9.0]
+    assert f["pair_friction"][:, scene.region_pairs[0], :2].tolist() == [[0.3, 0.3], [0.7, 0.7]]
 
 
 # -- buffer sizing -------------------------------------------------------------------------------
@@ -280,3 +295,4 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
         with RolloutCost(scene, space, clips, pool=w) as cost:
             br = cost.evaluate(space.mean0[None])
         assert br.diverged.any() and "count as diverged" in capsys.readouterr().err
+
