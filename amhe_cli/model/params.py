@@ -305,9 +305,8 @@ class ParameterSpace:
             [kg, kg·m²], box–floor pair friction (sliding, both tangential directions), robot geom
             friction (robot–box, under MuJoCo's max rule), and the servo gains and trunk mass only
             where ``robot_kp``, ``robot_kd``, ``trunk_payload`` are free (else the scene's own, so
-            motors replaying torques stay motors). The derived constants are not included: the CPU
-            backend gets them from ``mj_setConst`` in :meth:`write`, the Warp backend from MuJoCo
-            Warp's ``set_const`` on the device.
+            motors replaying torques stay motors). The derived constants are not included:
+            :meth:`write_fields` gets them from ``mj_setConst``.
         """
         P = np.atleast_2d(np.asarray(P, dtype=float))
         B, m, b = len(P), self.scene.model, self.scene.box_body
@@ -340,14 +339,18 @@ class ParameterSpace:
         return out
 
     def write(self, model: mujoco.MjModel, vec: np.ndarray) -> None:
-        """Write all parameter values of ``vec`` (d,) into ``model`` in place (:meth:`model_fields`).
+        """Write all parameter values of ``vec`` (d,) into ``model`` in place (:meth:`model_fields`,
+        :meth:`write_fields`)."""
+        self.write_fields(model, self.model_fields(vec))
 
-        Calls ``mujoco.mj_setConst`` after inertial changes: without it
-        ``body_invweight0`` stays stale and the contact solver behaves as if
+    def write_fields(self, model: mujoco.MjModel, fields: dict[str, np.ndarray], b: int = 0) -> None:
+        """Row ``b`` of :meth:`model_fields`' ``fields`` into ``model`` in place, then ``mujoco.mj_setConst``.
+
+        Without ``mj_setConst`` ``body_invweight0`` stays stale and the contact solver behaves as if
         the mass were the old one (docs/reference.md#mujoco).
         """
-        for f, v in self.model_fields(vec).items():
-            getattr(model, f)[...] = v[0]
+        for f, v in fields.items():
+            getattr(model, f)[...] = v[b]
         data = self._scratch.get(id(model))
         if data is None:
             data = self._scratch[id(model)] = mujoco.MjData(model)

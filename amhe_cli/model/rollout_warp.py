@@ -319,20 +319,21 @@ def check_space(space) -> None:
 DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "tendon_invweight0", "actuator_acc0")
 
 
-def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel], datas: list[mujoco.MjData],
+def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel],
                      raise_friction: list[int] | None = None) -> dict[str, np.ndarray]:
     """Per-candidate values of :data:`BATCHED_FIELDS`, computed as the CPU backend computes them.
 
     The written fields of all candidates at once (:meth:`ParameterSpace.model_fields
     <amhe_cli.model.params.ParameterSpace.model_fields>`, what ``space.write`` sets), then per
-    candidate those fields into a scratch model, ``mj_setConst``, and its :data:`DERIVED_FIELDS`
-    read back: the same values to the bit as ``space.write`` gives, at half its cost (0.04 against
-    0.08 ms a candidate here; 200 candidates a call in a GPU MHE).
+    candidate those fields into a scratch model with ``mj_setConst`` (``space.write_fields``) and
+    its :data:`DERIVED_FIELDS` read back: the same values to the bit as writing each candidate and
+    copying every field, at half the cost (0.04 against 0.08 ms a candidate here; 200 candidates a
+    call in a GPU MHE).
 
     Args:
         space: the parameter space.
         P: (B, d) feasible candidates.
-        models, datas: at least B scratch copies of the scene's model and an ``MjData`` for each (overwritten).
+        models: at least B scratch copies of the scene's model (overwritten).
         raise_friction: geoms whose friction is raised to ``MJ_MINMU`` (:func:`friction_floor`).
     Returns:
         field -> (B, *field shape) float64 array; empty fields (e.g. no tendons) left out.
@@ -342,12 +343,9 @@ def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel], datas: 
     derived = {f: np.empty((len(P),) + getattr(space.scene.model, f).shape)
                for f in DERIVED_FIELDS if getattr(space.scene.model, f).size}
     for b in range(len(P)):
-        m = models[b]
-        for f, v in res.items():
-            getattr(m, f)[...] = v[b]
-        mujoco.mj_setConst(m, datas[b])
+        space.write_fields(models[b], res, b)
         for f, v in derived.items():
-            v[b] = getattr(m, f)
+            v[b] = getattr(models[b], f)
     res.update(derived)
     if raise_friction:
         res["geom_friction"][:, raise_friction] = np.maximum(res["geom_friction"][:, raise_friction], MJ_MINMU)
@@ -419,7 +417,6 @@ class WarpRollout:
         self.njmax = int(njmax or (self.bound[1] if self._fixed else 0))
         self.device = wp.get_device(device)
         self._models: list[mujoco.MjModel] = []
-        self._datas: list[mujoco.MjData] = []
         self._spaces_checked: set[int] = set()
         self._slots: dict[int, _Slot] = {}
         self.compile_time: float | None = None
@@ -442,12 +439,11 @@ class WarpRollout:
         """Drop the device buffers and graphs (a later call allocates them again)."""
         self._slots.clear()
 
-    def models(self, n: int) -> tuple[list[mujoco.MjModel], list[mujoco.MjData]]:
-        """``n`` host model copies (and an ``MjData`` each) to derive candidates' constants in (created once, reused)."""
+    def models(self, n: int) -> list[mujoco.MjModel]:
+        """``n`` host model copies to write candidates into (created once, reused)."""
         while len(self._models) < n:
             self._models.append(copy.copy(self.template))
-            self._datas.append(mujoco.MjData(self._models[-1]))
-        return self._models[:n], self._datas[:n]
+        return self._models[:n]
 
     # -- device set-up ---------------------------------------------------------
     def _slot(self, nworld: int) -> _Slot:
@@ -653,7 +649,7 @@ class WarpRollout:
         self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
-        fields = candidate_fields(space, P, *self.models(B), self._raise)
+        fields = candidate_fields(space, P, self.models(B), self._raise)
         t1 = time.perf_counter()
         self._set_fields(s, fields, B)
         t2 = time.perf_counter()
