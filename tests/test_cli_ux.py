@@ -103,6 +103,9 @@ def test_identify_stopped_by_generations_warns_and_says_not_converged(capsys, tm
     assert res["truth"] == {"box_mass": pytest.approx(2.5), "box_friction": pytest.approx(0.3)}
     warn = [ln for ln in err.splitlines() if ln.startswith("amhe: warning:")]
     assert len(warn) == 1 and "generation limit (2)" in warn[0] and "--generations" in warn[0]
+    # it names the coordinates whose search is still wider than the data's σ (that spread is in σ)
+    assert res["unsettled"] and all(v > 1 for v in res["unsettled"].values())
+    assert "wider than the log's own σ" in warn[0] and "box_mass" in warn[0] and "in the stated σ" in warn[0]
     assert plot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # --force replaced it
     # the text says so too, and does not call the residual consistent with the noise
     code, out, err = amhe(capsys, "identify", example, *FAST_ID, "--clips", "8", "--generations", "2",

@@ -358,12 +358,16 @@ def not_converged_warning(result: IdentifyResult) -> str | None:
     """The warning for an identification the generation limit stopped before CMA-ES converged, else None."""
     if result.converged:
         return None
-    return (f"CMA-ES stopped at the generation limit ({result.settings.max_gen}) before it converged: "
-            "the estimate may still be moving and its residual is not judged; raise --generations")
-
-
-#: Residual rms per step (in ``W_x`` σ's) from which an identification's model is taken not to match its log.
-MISMATCH_RMS = 3.0
+    where = ""
+    if result.unsettled:
+        lo, hi = min(result.unsettled.values()), max(result.unsettled.values())
+        span = f"{lo:.1f}×" if hi - lo < 0.05 else f"{lo:.1f}–{hi:.1f}×"
+        names = dict.fromkeys(n for n in result.space.free if any(k == n or k.startswith(n + "_")
+                                                                  for k in result.unsettled))
+        where = f", its search along {', '.join(names)} still {span} wider than the log's own σ"
+    return (f"CMA-ES stopped at the generation limit ({result.settings.max_gen}){where}: that spread is in the "
+            "stated σ and the residual is not judged; more --generations narrow it (docs/benchmarks.md: a "
+            "narrower σ misses a log's bias more often)")
 
 
 def mismatch_warning(result: IdentifyResult) -> str | None:

@@ -174,6 +174,8 @@ class IdentifyResult:
             (e.g. ``{"maxiter": 40}`` or ``{"tolx": 0.003}``).
         replicates: (K − 1, d) the bootstrap replicates' estimates
             (``settings.replicates``); (0, d) without.
+        unsettled: where the generation limit stopped the search, each coordinate (its label) whose
+            search spread was still wider than its σ from the data -> that ratio (> 1); empty when converged.
     """
 
     space: ParameterSpace
@@ -190,6 +192,7 @@ class IdentifyResult:
     converged: bool = True
     stop: dict = field(default_factory=dict)
     replicates: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    unsettled: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """JSON-ready ``{"estimate", "std", "prior", ...}`` (vectors as lists)."""
@@ -211,6 +214,7 @@ class IdentifyResult:
             "stop": {k: (float(v) if isinstance(v, (int, float, np.number)) else str(v)) for k, v in self.stop.items()},
             "std_sources": {src: self._physical_std(v) for src, v in self.curvature.sources.items()},
             "replicates": [sp.free_values(r) for r in self.replicates],
+            "unsettled": {k: float(v) for k, v in self.unsettled.items()},
         }
 
     def _physical_std(self, std: np.ndarray) -> dict:
@@ -358,6 +362,8 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
             # tolx from firing): more generations would move the estimate by less than its σ
             converged = True
             stop["search_within_sigma"] = True
+        ratio = search_std / np.maximum(curv.std, 1e-300)
+        unsettled = {} if converged else {space.labels[i]: float(ratio[i]) for i in np.flatnonzero(ratio > 1)}
         # where CMA-ES stopped inside its own spread (which draw of the rough floor ended the search) is an error
         # of its own, beside the clip sets': a term, not a floor (docs/benchmarks.md, "Does the stated σ ...")
         curv = with_covariance(curv, curv.cov + np.diag(search_std ** 2))
@@ -372,7 +378,7 @@ def identify(traj: Trajectory, scene: Scene, space: ParameterSpace, settings: Id
         space=space, estimate=estimate, curvature=curv, cost_prior=cost_prior, cost_estimate=j_est,
         residual_rms=float(np.sqrt(data / max(clips.steps, 1))), history=history, clips=clips,
         settings=settings, wall_time=time.perf_counter() - t0, evaluations=evals,
-        converged=converged, stop=stop, replicates=rep_estimates,
+        converged=converged, stop=stop, replicates=rep_estimates, unsettled=unsettled,
     )
 
 
