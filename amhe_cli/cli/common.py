@@ -370,6 +370,10 @@ def not_converged_warning(result: IdentifyResult) -> str | None:
             "narrower σ misses a log's bias more often)")
 
 
+#: Residual rms per step (in ``W_x`` σ's) from which an identification's model is taken not to match its log.
+MISMATCH_RMS = 3.0
+
+
 def mismatch_warning(result: IdentifyResult) -> str | None:
     """What to do when the converged residual says the model does not match the log, else None.
 
