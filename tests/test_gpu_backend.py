@@ -295,3 +295,18 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
             br = cost.evaluate(space.mean0[None])
         assert br.diverged.any() and "count as diverged" in capsys.readouterr().err
 
+
+
+@pytest.mark.gpu
+@gpu
+def test_the_kernel_message_is_said_once_per_process(scene, clips, capsys):
+    """A command that makes two backends (the payload fit's, then identify's) says once that kernels
+    compile or load, and how long it took."""
+    space = ParameterSpace(scene, ("box_mass",))
+    for _ in range(2):
+        with rw.WarpRollout(scene.model) as w:
+            w.rollout_candidates(space, space.mean0[None], clips.initial_state, clips.control, clips.horizon)
+            assert w.compile_time is not None
+    err = capsys.readouterr().err
+    assert err.count("kernels ready in") <= 1  # none if an earlier test in this process said it
+    assert rw._KERNELS_ANNOUNCED["done"]
