@@ -73,7 +73,7 @@ class RolloutPool:
 
         Args:
             space: the :class:`~amhe_cli.model.params.ParameterSpace` whose
-                ``write`` puts a candidate into a model.
+                ``model_fields`` and ``write_fields`` put a candidate into a model.
             P: (B, d) feasible candidates.
             initial_state: (N_c, nstate) mjSTATE_FULLPHYSICS clip starts.
             control: (N_c, H_max, nu) controls; row t drives step t.
@@ -86,8 +86,9 @@ class RolloutPool:
         P = np.atleast_2d(P)
         B, n = P.shape[0], len(horizon)
         models = self.models(B)
+        fields = space.model_fields(P)  # all candidates at once; mj_setConst per model
         for b in range(B):
-            space.write(models[b], P[b])
+            space.write_fields(models[b], fields, b)
         m = self.template
         hmax = control.shape[1]
         qpos = np.empty((B, n, hmax, m.nq))
