@@ -14,6 +14,7 @@ the same lines when ``$OUT`` is set.
 
 from __future__ import annotations
 
+import importlib
 import os
 import sys
 import time
@@ -43,26 +44,29 @@ def _timed(name, fn):
     return wrapper
 
 
-def _patch(module_name: str, attr: str, phase: str) -> None:
-    """Replace ``module.attr`` and every amhe module's reference to the same object by a timed wrapper."""
-    import importlib
-    mod = importlib.import_module(module_name)
-    fn = getattr(mod, attr)
-    wrapped = _timed(phase, fn)
+def _wrap(module_name: str, attr: str, wrap) -> None:
+    """Replace ``module.attr``, and every amhe module's reference to the same object, by ``wrap(it)``."""
+    fn = getattr(importlib.import_module(module_name), attr)
+    new = wrap(fn)
     for name, m in list(sys.modules.items()):
         if name.startswith("amhe_cli") and getattr(m, attr, None) is fn:
-            setattr(m, attr, wrapped)
+            setattr(m, attr, new)
 
 
-def _patch_method(module_name: str, cls: str, attr: str, phase: str, first_only: bool = False) -> None:
-    import importlib
+def _patch(module_name: str, attr: str, phase: str) -> None:
+    """``module.attr`` timed as ``phase`` wherever amhe calls it."""
+    _wrap(module_name, attr, lambda fn: _timed(phase, fn))
+
+
+def _patch_first_call(module_name: str, cls: str, attr: str, phase: str) -> None:
+    """The first call of method ``cls.attr`` timed as ``phase``."""
     klass = getattr(importlib.import_module(module_name), cls)
     fn = getattr(klass, attr)
-    state = {"done": False}
     timed = _timed(phase, fn)
+    state = {"done": False}
 
     def method(self, *a, **k):
-        if first_only and state["done"]:
+        if state["done"]:
             return fn(self, *a, **k)
         state["done"] = True
         return timed(self, *a, **k)
@@ -74,16 +78,12 @@ BACKENDS: list = []
 
 def _keep_backends() -> None:
     """Keep every backend ``make_backend`` creates, to print the Warp backend's own phase timing."""
-    import amhe_cli.model.device as dev
-    made = dev.make_backend
-
-    def keep(*a, **k):
-        b = made(*a, **k)
-        BACKENDS.append(b)
-        return b
-    for name, m in list(sys.modules.items()):
-        if name.startswith("amhe_cli") and getattr(m, "make_backend", None) is made:
-            setattr(m, "make_backend", keep)
+    def keeping(made):
+        def keep(*a, **k):
+            BACKENDS.append(made(*a, **k))
+            return BACKENDS[-1]
+        return keep
+    _wrap("amhe_cli.model.device", "make_backend", keeping)
 
 
 def main_phases(argv: list[str]) -> None:
@@ -102,13 +102,8 @@ def main_phases(argv: list[str]) -> None:
     _keep_backends()
     _patch("amhe_cli.estimation.identify", "identify", "identify (all of it)")
     _patch("amhe_cli.cli.common", "save_outputs", "write outputs")
-    try:
-        import amhe_cli.model.rollout_warp as rw
-        _patch_method("amhe_cli.model.rollout_warp", "WarpRollout", "rollout_candidates",
-                      "first cuda rollout call (kernels, first slot)", first_only=True)
-        del rw
-    except ImportError:
-        pass
+    _patch_first_call("amhe_cli.model.rollout_warp", "WarpRollout", "rollout_candidates",
+                      "first cuda rollout call (kernels, first slot)")
     t = time.perf_counter()
     try:
         main(argv)

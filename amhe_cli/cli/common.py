@@ -362,8 +362,9 @@ def not_converged_warning(result: IdentifyResult) -> str | None:
     if result.unsettled:
         lo, hi = min(result.unsettled.values()), max(result.unsettled.values())
         span = f"{lo:.1f}×" if hi - lo < 0.05 else f"{lo:.1f}–{hi:.1f}×"
-        names = dict.fromkeys(n for n in result.space.free if any(k == n or k.startswith(n + "_")
-                                                                  for k in result.unsettled))
+        labels = result.space.labels
+        names = [n for n, sl in result.space.slices().items()
+                 if any(labels[i] in result.unsettled for i in range(sl.start, sl.stop))]
         where = f", its search along {', '.join(names)} still {span} wider than the log's own σ"
     return (f"CMA-ES stopped at the generation limit ({result.settings.max_gen}){where}: that spread is in the "
             "stated σ and the residual is not judged; more --generations narrow it (docs/benchmarks.md: a "

@@ -229,9 +229,9 @@ class Planner:
 
     def set_params(self, values: np.ndarray) -> None:
         """Write a parameter vector (flat coordinates of ``space``) into every planner model copy."""
-        values = np.asarray(values, dtype=float)
+        fields = self.space.model_fields(np.asarray(values, dtype=float))  # once, for every copy
         for m in self._models:
-            self.space.write(m, values)
+            self.space.write_fields(m, fields)
 
     def predict(self, state: np.ndarray, controls: np.ndarray) -> np.ndarray:
         """The planner model's state after holding each row of ``controls`` (n, 12) for one ``dt`` from ``state``.

@@ -53,15 +53,19 @@ import mujoco
 import numpy as np
 
 from amhe_cli.errors import AmheError
+from amhe_cli.model.params import ParameterSpace
 
 #: MuJoCo's smallest friction coefficient (mjMINMU).
 MJ_MINMU = 1e-5
 
+#: The fields ``mj_setConst`` derives from those :meth:`ParameterSpace.write
+#: <amhe_cli.model.params.ParameterSpace.write>` sets (:attr:`ParameterSpace.MODEL_FIELDS
+#: <amhe_cli.model.params.ParameterSpace.MODEL_FIELDS>`).
+DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "tendon_invweight0", "actuator_acc0")
+
 #: Model fields that are per world (batched) in the Warp model: those ParameterSpace.write
 #: sets and those mj_setConst derives from them.
-BATCHED_FIELDS = ("body_mass", "body_inertia", "body_subtreemass", "body_invweight0", "dof_invweight0",
-                  "tendon_invweight0", "actuator_acc0", "geom_friction", "pair_friction",
-                  "actuator_gainprm", "actuator_biasprm")
+BATCHED_FIELDS = ParameterSpace.MODEL_FIELDS + DERIVED_FIELDS
 
 #: Fields mj_setConst may rewrite that a MuJoCo Warp step never reads (kept out of the per-world copy).
 HOST_ONLY_FIELDS = ("dof_M0", "body_gravcomp_invweight0")
@@ -316,11 +320,6 @@ def check_space(space) -> None:
     if extra:
         raise AmheError(f"--device cuda: parameters {', '.join(space.free)} write {', '.join(sorted(extra))}, "
                         "which the Warp backend does not set per world (use --device cpu)")
-
-
-#: The batched fields ``mj_setConst`` derives from the written ones (the rest of :data:`BATCHED_FIELDS`
-#: is :attr:`ParameterSpace.MODEL_FIELDS <amhe_cli.model.params.ParameterSpace.MODEL_FIELDS>`).
-DERIVED_FIELDS = ("body_subtreemass", "body_invweight0", "dof_invweight0", "tendon_invweight0", "actuator_acc0")
 
 
 def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel],
