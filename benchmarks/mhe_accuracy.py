@@ -12,10 +12,10 @@ the friction is within 0.1 of the new value 3 s after the step ("@3s") and
 from then on ("from 3s"); the last column counts the runs that hold the issue's
 bounds from 3 s after each change (mass within 10 %, μ within 0.05, the
 unchanged parameter included), and how many held the friction force m·μ (what a
-steady push shows, ``benchmarks/window_information.py``) within 10 %; on a constant-parameter log given with ``--sliding``
-(e.g. noisy motion capture) the friction is within 0.05 of the truth from 3 s
-after the box first slides (truth speed above 2 cm/s, from the truth CSV's box
-velocity where it has one) to the end. Configs: ``default`` (the library's
+steady push shows, ``benchmarks/window_information.py``) within 10 %; on a
+constant-parameter log given with ``--sliding`` (e.g. noisy motion capture) the
+friction is within 0.05 of the truth from 3 s after the box first slides (truth
+speed above 2 cm/s, from the truth CSV's box velocity where it has one) to the end. Configs: ``default`` (the library's
 settings, as ``amhe run`` uses them), ``mhe-replay`` (its CLI defaults,
 ``REPLAY_SETTINGS``), and any ``--config``. Each (config, log, seed) runs in its own process; the
 table gives the fraction of runs meeting each target and the worst errors.
@@ -145,7 +145,8 @@ def main() -> None:
         post = [r[1][1] <= 0.1 and r[1][2] <= 0.05 for r in ms] + [r[1][1] <= 0.05 and r[1][2] <= 0.1 for r in st]
         line += f"   after each change, mass 10 % and mu 0.05: {sum(post)}/{len(post)}"
         force = [r[1][3] for r in ms + st]
-        line += f", m·mu 10 %: {sum(f <= 0.1 for f in force)}/{len(force)} (worst {100 * np.nanmax(force):.0f} %)"
+        line += (f", m·mu 10 %: {sum(f <= 0.1 for f in force)}/{len(force)} "
+                 f"(worst {100 * np.nanmax(force):.0f} %)")
         sl = [r for r in rows if r[0] == "sliding"]
         if sl:
             line += f"   sliding: {sum(r[2] for r in sl)}/{len(sl)} within 0.05, worst mu {max(r[1][0] for r in sl):.3f}"

@@ -76,8 +76,8 @@ def one(job: tuple) -> dict:
 
 
 def table(rows: list[dict]) -> None:
-    print(f"{'log':<14} {'window [s]':>12} {'n':>2} {'box speed':>9} {'± [m/s]':>7} {'mass err %':>16} {'mass σ %':>8} "
-          f"{'mu err':>14} {'held':>5}")
+    print(f"{'log':<14} {'window [s]':>12} {'n':>2} {'box speed':>9} {'± [m/s]':>7} {'mass err %':>16} "
+          f"{'mass σ %':>8} {'mu err':>14} {'held':>5}")
     for key in sorted({(r["log"], tuple(r["window"])) for r in rows}):
         rs = [r for r in rows if (r["log"], tuple(r["window"])) == key]
         me = np.array([100 * (r["mass"] / r["true_mass"] - 1) for r in rs])

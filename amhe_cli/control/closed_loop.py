@@ -416,7 +416,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                                     prior_std=_belief_std(belief))
             mhe_settings = replace(s.mhe, seed=s.seed)
             estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
-            if clocked:  # the robot walks on while an import runs: nothing the MHE's windows need loads mid-run
+            if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
     except BaseException as exc:
         plant.close(f"{type(exc).__name__}: {exc}")
