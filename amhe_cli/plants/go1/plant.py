@@ -159,12 +159,12 @@ class Go1Plant(Plant):
             if state is not None:
                 self.estimator.update_state(now, state)
             self.estimator.update_poses(base, box)
+            if self._t0 is None or now < self._t0:
+                return  # the start waits for fresh poses itself: its ticks before them are not the run's news
             if fresh != self._mocap_was_ok:
                 self._messages.append("motion capture stale: holding the stand" if not fresh
                                       else "motion capture fresh again")
                 self._mocap_was_ok = fresh
-            if self._t0 is None or now < self._t0:
-                return
             for key, sample in (("base", base), ("box", box)):
                 raw = self._raw[key]
                 if sample is not None and (not raw or raw[-1][3] != sample.seq):
