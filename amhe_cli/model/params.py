@@ -207,14 +207,19 @@ class ParameterSpace:
         m = np.asarray(mass, dtype=float)[..., None]
         return self.prior_values["box_inertia"] * m / self.prior_values["box_mass"][0]
 
+    def _moments(self, P: np.ndarray, mass: np.ndarray) -> np.ndarray:
+        """(B, 3) box inertia moments [kg·m²] of (B, d) candidates with box masses (B,) [kg]: the free
+        shape ratio (1 where the inertia is not free) times the prior's moments scaled to the mass."""
+        ratio = P[:, self._slices["box_inertia"]] if "box_inertia" in self._slices else np.ones((len(P), 3))
+        return ratio * self._inertia_base(mass)
+
     def values(self, vec: np.ndarray) -> dict[str, float | np.ndarray]:
         """All parameters (free from ``vec`` (d,), the rest at the prior) as name -> physical value."""
         vec = np.asarray(vec, dtype=float)
         out = {n: v.copy() for n, v in self.prior_values.items()}
         for name, sl in self._slices.items():
             out[name] = vec[sl].copy()
-        ratio = out["box_inertia"] if "box_inertia" in self._slices else np.ones(3)
-        out["box_inertia"] = ratio * self._inertia_base(out["box_mass"][0])
+        out["box_inertia"] = self._moments(vec[None], out["box_mass"][:1])[0]
         return {n: (float(v[0]) if v.size == 1 else v) for n, v in out.items()}
 
     def physical(self, vec: np.ndarray, std: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
@@ -318,9 +323,8 @@ class ParameterSpace:
 
         out = {f: np.repeat(np.asarray(getattr(m, f), dtype=float)[None], B, axis=0) for f in self.MODEL_FIELDS}
         mass = value("box_mass")[:, 0]
-        ratio = P[:, self._slices["box_inertia"]] if "box_inertia" in self._slices else np.ones((B, 3))
         out["body_mass"][:, b] = mass
-        out["body_inertia"][:, b] = ratio * self._inertia_base(mass)
+        out["body_inertia"][:, b] = self._moments(P, mass)
         mu = value("box_friction")
         pairs = np.asarray(self.scene.region_pairs)
         out["pair_friction"][:, pairs, 0] = mu
