@@ -296,7 +296,6 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
         assert br.diverged.any() and "count as diverged" in capsys.readouterr().err
 
 
-
 @pytest.mark.gpu
 @gpu
 def test_the_kernel_message_is_said_once_per_process(scene, clips, capsys):
