@@ -611,19 +611,24 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
     np.testing.assert_array_equal(a.traj.ctrl, b.traj.ctrl)
 
 
-def test_the_wall_clocks_planner_is_lighter_and_quieter_and_a_config_still_overrides_it():
+def test_the_wall_clocks_planner_and_mhe_differ_from_lock_steps_and_a_config_still_overrides_them():
     """On the wall clock, or a lock-step run that emulates it (``latency``), the planner samples fewer,
-    narrower knots (REALTIME_PLANNER); the lock-step run keeps the defaults; a config's keys win."""
-    _, lock = run_settings("t4", "true", {})
+    narrower knots (REALTIME_PLANNER) and the MHE runs mhe-replay's settings (REALTIME_MHE: more steps and
+    samples, fused); the lock-step run keeps the defaults; a config's keys win."""
+    _, lock = run_settings("t4", "adaptive", {})
     assert (lock.planner.samples, lock.planner.refine_loops) == (30, 3)
     assert lock.planner.noise == pytest.approx((0.03, 0.05, 0.05))
+    assert (lock.mhe.max_steps, lock.mhe.samples, lock.mhe.fuse) == (150, 10, False)
     for config, realtime in (({}, True), ({"latency": 0.035}, False)):
-        _, wall = run_settings("t4", "true", config, realtime=realtime)
+        _, wall = run_settings("t4", "adaptive", config, realtime=realtime)
         assert (wall.planner.samples, wall.planner.refine_loops) == (16, 1)
         assert wall.planner.noise == pytest.approx((0.015, 0.025, 0.025))
         assert wall.planner.recovery_noise == lock.planner.recovery_noise  # the recovery's search is not narrowed
-    _, mine = run_settings("t4", "true", {"latency": 0.035, "planner": {"noise": [0.03, 0.05, 0.05]}})
+        assert (wall.mhe.max_steps, wall.mhe.samples, wall.mhe.fuse) == (300, 20, True)
+    _, mine = run_settings("t4", "adaptive", {"latency": 0.035, "planner": {"noise": [0.03, 0.05, 0.05]},
+                                              "mhe": {"fuse": False}})
     assert mine.planner.noise == pytest.approx((0.03, 0.05, 0.05)) and mine.planner.samples == 16
+    assert not mine.mhe.fuse and mine.mhe.max_steps == 300
 
 
 def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and_is_refused_off_the_sim():

@@ -27,7 +27,7 @@ from amhe_cli.io.plain import to_plain
 from amhe_cli.control.closed_loop import MODES, RUN_PARAMS, RunSettings, run_task, task_scene_config
 from amhe_cli.errors import AmheError, check_names
 from amhe_cli.estimation.identify import IdentifySettings, identify
-from amhe_cli.estimation.mhe import MHESettings
+from amhe_cli.estimation.mhe import REALTIME_MHE, MHESettings
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.control.planner import REALTIME_PLANNER, PlannerSettings
 from amhe_cli.control.probing import simulate_probe
@@ -78,8 +78,9 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     """The task and settings of one run from a config dict (see :func:`load_config`).
 
     On the wall clock (``realtime``), or a lock-step run that emulates it (the config's
-    ``latency``), the planner starts from :data:`~amhe_cli.control.planner.REALTIME_PLANNER`,
-    under the config's ``planner:`` keys.
+    ``latency``), the planner starts from :data:`~amhe_cli.control.planner.REALTIME_PLANNER`
+    and the MHE from :data:`~amhe_cli.estimation.mhe.REALTIME_MHE`, under the config's
+    ``planner:`` and ``mhe:`` keys.
 
     Raises:
         AmheError: unknown task, mode, setting or weight name.
@@ -95,9 +96,10 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     task = get_task(task_name, weights=CostWeights.from_dict(config.get("weights") or {}), **overrides)
     mhe = config.get("mhe") or {}
     check_names(mhe, MHESettings.__dataclass_fields__, "mhe setting")
-    # the wall clock's planner where a run has one, or emulates one (``latency``)
+    # the wall clock's planner and MHE where a run has one, or emulates one (``latency``)
     wall = realtime or config.get("latency") is not None
     planner = {**(REALTIME_PLANNER if wall else {}), **(config.get("planner") or {})}
+    mhe = {**(REALTIME_MHE if wall else {}), **mhe}
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(planner),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
                            reflex=ReflexSettings.from_dict(config.get("reflex") or {}),
