@@ -23,8 +23,8 @@ from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.control.planner import PlannerSettings, spline_basis
 from amhe_cli.estimation.sampling import mppi_weights
 from amhe_cli.model.scene import FOOT_RADIUS, STAND_JOINTS
-from amhe_cli.control.tasks import (BASE_HEIGHT, HEAD_REACH, LINE_TOLERANCE, PUSH_HYSTERESIS, REACH_LEG, REACH_PRESS,
-                                    REACH_TIMES, CostWeights, Event, get_task)
+from amhe_cli.control.tasks import (BASE_HEIGHT, HEAD_REACH, REACH_LEG, REACH_PRESS, REACH_TIMES, CostWeights, Event,
+                                    get_task)
 
 #: small planner: enough to exercise every code path, cheap enough for a test
 SMALL = {"samples": 8, "horizon": 20}
@@ -317,28 +317,6 @@ def test_a_robot_past_the_box_walks_back_behind_it():
     # fallen far behind the box: walk up to it
     cmd = task.command(box - [1.5, 0.0], 0.0, box, HALF_DEPTH)
     assert cmd["phase"] == "approach" and cmd["speed"] > 0 and cmd["waypoint"][1] == pytest.approx(box[1])
-
-
-def test_the_push_phase_holds_through_jitter_at_its_bound_and_ends_past_the_hysteresis():
-    """A trunk swaying 1–2 cm across the push line's tolerance keeps pushing once it pushes (the bounds
-    widen by PUSH_HYSTERESIS); from the approach the old bound still applies; beyond the widened one it is off."""
-    task = get_task("t1")
-    box = np.array([1.0, 0.0])
-    back = HALF_DEPTH + HEAD_REACH
-    edge = HALF_DEPTH + LINE_TOLERANCE  # the line's tolerance, to the robot's left
-    jitter = edge + np.array([-0.01, 0.01, -0.02, 0.02, 0.0, 0.015])
-    phases, phase = [], "push"
-    for y in jitter:  # without hysteresis every other cycle would flip
-        phase = task.command(box - [back, -y], 0.0, box, HALF_DEPTH, phase=phase)["phase"]
-        phases.append(phase)
-    assert phases == ["push"] * len(jitter)
-    assert task.command(box - [back, -(edge + 0.01)], 0.0, box, HALF_DEPTH)["phase"] == "approach"  # entering
-    far = edge + PUSH_HYSTERESIS + 0.01
-    assert task.command(box - [back, -far], 0.0, box, HALF_DEPTH, phase="push")["phase"] == "approach"
-    # along the push as well: walked past the rear face by less than the hysteresis, still pushing
-    past = box - [HALF_DEPTH - 0.5 * PUSH_HYSTERESIS, 0.0]
-    assert task.command(past, 0.0, box, HALF_DEPTH, phase="push")["phase"] == "push"
-    assert task.command(past, 0.0, box, HALF_DEPTH)["phase"] == "approach"
 
 
 def test_t1_speed_command_slows_to_its_floor_at_goal_and_a_bad_floor_is_refused():

@@ -324,19 +324,17 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     return Planner(pscene, space, task, s.planner, nthread=s.threads, seed=s.seed), space
 
 
-def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float,
-                     phase: str | None = None) -> tuple[dict, float]:
+def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float) -> tuple[dict, float]:
     """The task's command (:meth:`~amhe_cli.control.tasks.Task.command`) from a measured plant state.
 
     Args:
         qpos: (nq,) the plant's generalized positions (``scene``'s layout); t: task time [s].
-        phase: the last cycle's command phase (the push phase's hysteresis), or None.
     Returns:
         (command dict, the trunk's yaw [rad]).
     """
     yaw = float(quat_to_yaw(qpos[scene.base_qpos[3:]]))
     cmd = task.command(qpos[scene.base_qpos[:2]], yaw, qpos[scene.box_qpos[:2]], TASK_BOX_SIZE[0] / 2, t=t,
-                       box_yaw=float(quat_to_yaw(qpos[scene.box_qpos[3:]])), phase=phase)
+                       box_yaw=float(quat_to_yaw(qpos[scene.box_qpos[3:]])))
     return cmd, yaw
 
 
@@ -464,7 +462,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if safety_status is not None and view:
                 view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
-            cmd, yaw = measured_command(task, sc, q, t, phase)
+            cmd, yaw = measured_command(task, sc, q, t)
             text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]])
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")

@@ -50,11 +50,6 @@ PUSH_ZONE = (0.0, 0.5)
 #: Push phase: largest offset of the robot's origin from the push line beyond the box's half width [m]
 #: (0.25: the head plate still overlaps the box; pushing a corner is still pushing).
 LINE_TOLERANCE = 0.25
-#: Push phase, once in it: the zone and the line tolerance widen by this much [m] before the robot counts as
-#: off the box (a Schmitt trigger). Without it a trunk at a bound flips push/approach on every cycle under
-#: 1 mm motion-capture noise and the trot's sway, and each flip moves the waypoint by up to 0.6 m: seen on
-#: the emulated Go1 as five phase changes within 0.15 s (T1 Adaptive, 2-core machine).
-PUSH_HYSTERESIS = 0.05
 #: Push phase: heading bend back toward the push line per metre of offset [rad/m], and its limit [rad].
 LINE_GAIN, MAX_LINE_BEND = 1.5, 0.35
 #: Approach phase: the pre-push point lies this much behind the pushing pose (and this much more
@@ -257,8 +252,7 @@ class Task:
         return float(np.linalg.norm(np.asarray(box_xy)[:2] - np.asarray(self.goal)))
 
     def command(self, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, half_depth: float,
-                half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0,
-                phase: str | None = None) -> dict:
+                half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0) -> dict:
         """Per-cycle targets for the planner's cost and the gait.
 
         Walking tasks have two phases, chosen from where the robot stands in the
@@ -271,8 +265,7 @@ class Task:
           :data:`LINE_GAIN` per metre of offset (the trot has no sidestep, so the
           robot corrects its offset by steering, as a line follower does).
         * **approach**: otherwise (it slid off the box, walked past it, or fell
-          back; once pushing, the bounds widen by :data:`PUSH_HYSTERESIS` before it
-          counts as off). The robot walks to a pre-push point :data:`APPROACH_MARGIN`
+          back). The robot walks to a pre-push point :data:`APPROACH_MARGIN`
           behind the pushing pose — around the box's side first if the box is in
           the way — turning on the spot while the heading error exceeds
           :data:`TURN_IN_PLACE`; the box's reference holds still.
@@ -288,7 +281,6 @@ class Task:
             half_width: half its extent across the push [m] (default: ``half_depth``).
             t: time since the task started [s] (the one-leg push's reach phases).
             box_yaw: the box's yaw [rad] (the one-leg push: which face the foot meets).
-            phase: the last cycle's ``phase`` (``"push"`` widens the push bounds), or None.
         Returns:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
@@ -324,9 +316,8 @@ class Task:
         along, lateral = float(rel @ d), float(rel @ normal)
         reach = half_depth + HEAD_REACH
         push_yaw = float(np.arctan2(d[1], d[0]))
-        h = PUSH_HYSTERESIS if phase == "push" else 0.0
-        behind = -(reach + PUSH_ZONE[1] + h) <= along <= -(half_depth + PUSH_ZONE[0] - h)
-        if behind and abs(lateral) <= half_width + LINE_TOLERANCE + h:
+        behind = -(reach + PUSH_ZONE[1]) <= along <= -(half_depth + PUSH_ZONE[0])
+        if behind and abs(lateral) <= half_width + LINE_TOLERANCE:
             yaw = push_yaw - float(np.clip(LINE_GAIN * lateral, -MAX_LINE_BEND, MAX_LINE_BEND))
             return {**out, "direction": d, "waypoint": box_xy - d * reach, "yaw": yaw,
                     "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
