@@ -12,7 +12,8 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
-from the client's own), then one row per
+from the client's own; ``lost_box`` counts the client's push-to-approach switches and ``mhe_deferred``
+the MHE updates its core budget put off), then one row per
 (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -57,6 +58,7 @@ from amhe_cli.io.reader import inspect_log, read_float_arrays
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
+DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -67,10 +69,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_meta(path: str) -> dict:
-    """The ``amhe_run`` metadata record of a run's MCAP ({} if unreadable)."""
+def run_meta(path: str, record: str = "amhe_run") -> dict:
+    """A metadata record of a run's MCAP (``amhe_run``: its settings and figures; ``amhe_run_log``: its
+    messages) ({} if unreadable)."""
     try:
-        return dict(inspect_log(path).metadata.get("amhe_run", {}))
+        return dict(inspect_log(path).metadata.get(record, {}))
     except Exception:  # noqa: BLE001 - a run cut off before its recording closed
         return {}
 
@@ -165,6 +168,12 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
+    # the client's own account (its run log): push-to-approach switches (a trunk at a bound of the push zone
+    # flips them) and the MHE updates its core budget put off on the wall clock
+    log = " ".join(run_meta(recording, "amhe_run_log").values())
+    res["lost_box"] = log.count("lost the box")
+    m = DEFERRED.search(log)
+    res["mhe_deferred"] = int(m.group(1)) if m else 0
     meta = run_meta(recording)
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
