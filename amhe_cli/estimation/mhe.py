@@ -164,7 +164,8 @@ REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
 #: three times the work and so comes less often under the estimator's core budget. Over 70 runs of T1, T3
 #: and T4 (more seeds) 7 falls against 12, S_R 84 against 77 %, T1 alone 2 falls in 20 against none
 #: (docs/evaluation.md). On recorded noisy logs offline they hold m·μ within 10 % in 10 of 16 runs
-#: against 6 (``benchmarks/mhe_accuracy.py``). The lock-step sim keeps the library's (Table II).
+#: against 6 (``benchmarks/mhe_accuracy.py``). A tendency, not a margin: T3 re-run with one small change
+#: to the task fell in 4 of 13. The lock-step sim keeps the library's (Table II).
 REALTIME_MHE = dict(REPLAY_SETTINGS)
 
 
