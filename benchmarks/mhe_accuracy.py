@@ -74,7 +74,7 @@ def run(job):
         after = t >= first_slide(log, pr.traj) + 3
         e = (float(np.abs(mu[after] - mut[after]).max()),)
         return kind, e, e[0] <= 0.05, res.realtime_factor
-    step_t = truth.t[np.argmax(np.diff(truth.values["box_friction"]) != 0) + 1]
+    step_t = truth.change_times("box_friction")[0]
     new = truth.values["box_friction"][-1]
     after = t >= step_t + 3
     if not after.any():

@@ -38,11 +38,8 @@ def windows(log: str, length: float) -> list[tuple[float, float]]:
         warnings.simplefilter("ignore")
         traj = read_log(log)
     truth = truth_series(log, traj)
-    change = 0.0
-    for name in ("box_mass", "box_friction"):
-        v = truth.values.get(name)
-        if v is not None and np.any(np.diff(v) != 0):
-            change = max(change, float(truth.t[np.flatnonzero(np.diff(v) != 0)[-1] + 1]))
+    last = [float(c[-1]) for c in (truth.change_times(n) for n in ("box_mass", "box_friction")) if len(c)]
+    change = max(last, default=0.0)
     start = change + 0.05 if change > 0 else float(traj.t[0])
     end = float(traj.t[-1])
     out = []

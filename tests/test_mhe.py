@@ -17,7 +17,7 @@ from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.estimation.sampling import gaussian_step, log_rank_weights
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.control.probing import simulate_probe
-from amhe_cli.estimation.replay import estimates_table, replay
+from amhe_cli.estimation.replay import TruthSeries, estimates_table, replay
 from amhe_cli.model.scene import Scene, SceneConfig
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
@@ -180,3 +180,12 @@ def test_cli_errors(step_mcap, tmp_path, args, words):
 def test_settings_check():
     with pytest.raises(AmheError, match="--clip"):
         MHESettings(window=0.5, clip=1.0).check()
+
+
+def test_truth_change_times_name_where_a_parameter_takes_a_new_value():
+    ts = TruthSeries(np.array([0.0, 0.5, 1.0, 1.5]), {"box_friction": np.array([0.4, 0.4, 0.8, 0.8]),
+                                                     "box_inertia": np.array([[1, 1, 1], [1, 2, 1], [1, 2, 1],
+                                                                              [1, 2, 1]], dtype=float)})
+    np.testing.assert_array_equal(ts.change_times("box_friction"), [1.0])
+    np.testing.assert_array_equal(ts.change_times("box_inertia"), [0.5])  # any component
+    assert ts.change_times("box_mass").size == 0  # unknown: no change

@@ -116,6 +116,14 @@ class TruthSeries:
         idx = np.clip(np.searchsorted(self.t, t, side="right") - 1, 0, len(self.t) - 1)
         return self.values[name][idx]
 
+    def change_times(self, name: str) -> np.ndarray:
+        """(n,) times [s] of the samples where ``name`` takes a new value (empty if it never changes or is unknown)."""
+        v = self.values.get(name)
+        if v is None:
+            return np.zeros(0)
+        changed = np.diff(np.asarray(v, dtype=float).reshape(len(self.t), -1), axis=0).any(axis=1)
+        return self.t[np.flatnonzero(changed) + 1]
+
 
 def truth_series(log: str, traj: Trajectory, csv_path: str | None = None) -> TruthSeries | None:
     """Ground truth for a log: ``csv_path``, else ``<log stem>.truth.csv`` beside it, else the
