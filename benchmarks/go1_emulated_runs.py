@@ -69,11 +69,11 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def run_meta(path: str, record: str = "amhe_run") -> dict:
-    """A metadata record of a run's MCAP (``amhe_run``: its settings and figures; ``amhe_run_log``: its
-    messages) ({} if unreadable)."""
+def run_records(path: str) -> dict:
+    """A run's MCAP metadata records, name -> dict (``amhe_run``: its settings and figures;
+    ``amhe_run_log``: its messages); {} if unreadable."""
     try:
-        return dict(inspect_log(path).metadata.get(record, {}))
+        return {name: dict(rec) for name, rec in inspect_log(path).metadata.items()}
     except Exception:  # noqa: BLE001 - a run cut off before its recording closed
         return {}
 
@@ -170,11 +170,12 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
     # the client's own account (its run log): push-to-approach switches (a trunk at a bound of the push zone
     # flips them) and the MHE updates its core budget put off on the wall clock
-    log = " ".join(run_meta(recording, "amhe_run_log").values())
+    records = run_records(recording)  # read once
+    log = " ".join(records.get("amhe_run_log", {}).values())
     res["lost_box"] = log.count("lost the box")
     m = DEFERRED.search(log)
     res["mhe_deferred"] = int(m.group(1)) if m else 0
-    meta = run_meta(recording)
+    meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
     t0_run = float(meta["monotonic_t0"]) if "monotonic_t0" in meta else None
