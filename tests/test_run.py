@@ -8,13 +8,15 @@ Closed-loop runs here are short (≤ 1.5 s of plant time) with a small planner
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
 from helpers import amhe, one_line_error
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.control.closed_loop import TASK_BOX_SIZE, RunSettings, make_plant, make_planner, run_task
+from amhe_cli.control.closed_loop import (MHE_DUTY, OWN_CORE_FROM, TASK_BOX_SIZE, EstimatorThread, RunSettings,
+                                          core_split, make_plant, make_planner, run_task)
 from amhe_cli.errors import AmheError
 from amhe_cli.control.evaluate import run_settings, summarise
 from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, STAND_HEIGHT
@@ -613,8 +615,8 @@ def test_t1_lock_step_is_reproducible(t1_true_runs):
 
 def test_the_wall_clocks_planner_and_mhe_differ_from_lock_steps_and_a_config_still_overrides_them():
     """On the wall clock, or a lock-step run that emulates it (``latency``), the planner samples fewer,
-    narrower knots (REALTIME_PLANNER) and the MHE runs mhe-replay's settings (REALTIME_MHE: more steps and
-    samples, fused); the lock-step run keeps the defaults; a config's keys win."""
+    narrower knots (REALTIME_PLANNER) and the MHE fuses its windows (REALTIME_MHE), with the library's
+    steps and samples so an update fits its core; the lock-step run keeps the defaults; a config's keys win."""
     _, lock = run_settings("t4", "adaptive", {})
     assert (lock.planner.samples, lock.planner.refine_loops) == (30, 3)
     assert lock.planner.noise == pytest.approx((0.03, 0.05, 0.05))
@@ -624,11 +626,48 @@ def test_the_wall_clocks_planner_and_mhe_differ_from_lock_steps_and_a_config_sti
         assert (wall.planner.samples, wall.planner.refine_loops) == (16, 1)
         assert wall.planner.noise == pytest.approx((0.015, 0.025, 0.025))
         assert wall.planner.recovery_noise == lock.planner.recovery_noise  # the recovery's search is not narrowed
-        assert (wall.mhe.max_steps, wall.mhe.samples, wall.mhe.fuse) == (300, 20, True)
+        assert (wall.mhe.max_steps, wall.mhe.samples, wall.mhe.fuse) == (150, 10, True)
     _, mine = run_settings("t4", "adaptive", {"latency": 0.035, "planner": {"noise": [0.03, 0.05, 0.05]},
-                                              "mhe": {"fuse": False}})
+                                              "mhe": {"fuse": False, "max_steps": 300}})
     assert mine.planner.noise == pytest.approx((0.03, 0.05, 0.05)) and mine.planner.samples == 16
     assert not mine.mhe.fuse and mine.mhe.max_steps == 300
+
+
+def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_updates():
+    """``mhe_cores`` below 1 keeps the planner on every CPU and holds the estimator thread to that share
+    of one core; whole cores go to the MHE and off the planner; one that leaves the planner nothing is
+    refused; the lock-step sim and modes without an MHE ignore it."""
+    wall = dict(mode="adaptive")
+    assert core_split(RunSettings(**wall), clocked=True, cpus=OWN_CORE_FROM - 1) == (None, 1, MHE_DUTY)
+    assert core_split(RunSettings(**wall), clocked=True, cpus=OWN_CORE_FROM) == (OWN_CORE_FROM - 1, 1, 1.0)
+    assert core_split(RunSettings(**wall, mhe_cores=0.25), clocked=True, cpus=4) == (None, 1, 0.25)
+    assert core_split(RunSettings(**wall, mhe_cores=1), clocked=True, cpus=4) == (3, 1, 1.0)
+    assert core_split(RunSettings(**wall, mhe_cores=2, threads=5), clocked=True, cpus=4) == (5, 2, 1.0)
+    assert core_split(RunSettings(**wall, mhe_cores=2), clocked=False, cpus=4) == (None, 1, 1.0)
+    assert core_split(RunSettings(mode="baseline", mhe_cores=2), clocked=True, cpus=4) == (None, 1, 1.0)
+    with pytest.raises(AmheError, match="leaves the planner none of the 2 CPU"):
+        core_split(RunSettings(**wall, mhe_cores=2), clocked=True, cpus=2)
+    for bad in (0, 1.5, -1):
+        with pytest.raises(AmheError, match="mhe_cores"):
+            RunSettings(**wall, mhe_cores=bad).check()
+    assert run_settings("t4", "adaptive", {"mhe_cores": 2})[1].mhe_cores == 2
+
+    class Slow:  # an estimator whose update takes 0.2 s of wall time
+        def update(self, traj, t):
+            time.sleep(0.2)
+            return t
+
+        def close(self):
+            pass
+
+    thread = EstimatorThread(Slow())
+    assert thread.rested(0.5) and thread.submit(None, 1.0)
+    assert not thread.rested(1.0) and not thread.submit(None, 1.5)  # one update at a time
+    assert thread.poll(wait=True) == 1.0
+    assert thread.rested(1.0) and not thread.rested(0.5)  # at half a core it idles as long as it worked
+    time.sleep(0.25)
+    assert thread.rested(0.5)
+    thread.close()
 
 
 def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and_is_refused_off_the_sim():

@@ -58,6 +58,7 @@ from amhe_cli.control.gait import GAITS
 from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
+from amhe_cli.model.rollout import default_threads
 from amhe_cli.model.scene import Scene, SceneConfig
 from amhe_cli.control.tasks import Task
 from amhe_cli.io.smoothing import preload as preload_smoothing
@@ -78,11 +79,17 @@ MAX_LEAD = 0.15
 #: In the sim a lock-step loop replanning every 70 ms fell or missed in 2 of 3 runs where one replanning every
 #: 20 ms reached the goal in 3 of 3; the emulated Go1 runs that stayed up replanned at 23-30 Hz.
 MIN_REALTIME_HZ, RATE_CHECK_CYCLES, RATE_CHECK_SECONDS = 15.0, 20, 2.0
-#: Largest share of wall time the MHE thread may be busy on a wall-clock plant: an update
-#: due sooner after the last one than this allows waits for the next slot. Updates that
-#: ran back to back took a core from the planner's rollouts (T1 on the Go1 emulator,
+#: Largest share of wall time the MHE thread may be busy on a wall-clock plant where it shares the
+#: planner's CPUs: an update due sooner after the last one than this allows waits for the next slot.
+#: Updates that ran back to back took a core from the planner's rollouts (T1 on the Go1 emulator,
 #: 2 cores: planner 74 ms a cycle with the MHE, 50 ms without).
 MHE_DUTY = 0.5
+#: CPUs from which the wall clock's MHE gets a core of its own by default (``RunSettings.mhe_cores``).
+#: On the emulated Go1 with 4 CPUs per client (Adaptive, T1/T3/T4, :data:`~amhe_cli.estimation.mhe.REALTIME_MHE`)
+#: the planner on the other 3 replanned at 19–27 Hz and the runs fell 2 times in 60; the MHE on half a shared
+#: core 7 times (with ``mhe-replay``'s heavier updates, 22–57 of them deferred a run). A second core of its own
+#: left the planner 2 and 20 Hz: 4 falls in 30 (docs/evaluation.md). Below it, a core is too dear to the planner.
+OWN_CORE_FROM = 4
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)
 
@@ -173,7 +180,12 @@ class RunSettings:
         cycle: plant time per planner cycle in lock-step [s] (multiple of the
             planner's dt); in realtime mode the planner's own compute time.
         seed: seeds the planner's and the estimator's sampling.
-        threads: rollout threads of the planner (the MHE uses one).
+        threads: rollout threads of the planner (default: the CPUs left to it, :func:`core_split`).
+        mhe_cores: cores the online MHE may keep busy on the wall clock (:func:`core_split`):
+            below 1 it shares the planner's CPUs with one thread and defers updates to stay
+            under that share of a core; 1 or more gives it that many threads of its own, taken
+            from the planner's. None (default): one of its own on a machine of at least
+            :data:`OWN_CORE_FROM` CPUs, else :data:`MHE_DUTY`. The lock-step sim ignores it.
         mhe_params: parameters the MHE frees (a subset of :data:`RUN_PARAMS`).
         reflex: the fall-prevention reflex's envelope (:class:`~amhe_cli.control.reflex.ReflexSettings`).
         kp, kd: joint PD gains of the position servos [N·m/rad], [N·m·s/rad],
@@ -196,6 +208,7 @@ class RunSettings:
     cycle: float = 0.02
     seed: int = 0
     threads: int | None = None
+    mhe_cores: float | None = None
     kp: float = 100.0
     kd: float = 4.0
     mhe_params: tuple = MHE_PARAMS
@@ -211,6 +224,10 @@ class RunSettings:
         self.planner.check()
         self.mhe.check()
         self.reflex.check()
+        if self.mhe_cores is not None and not (0 < self.mhe_cores <= 64 and
+                                               (self.mhe_cores < 1 or float(self.mhe_cores).is_integer())):
+            raise AmheError(f"mhe_cores {self.mhe_cores}: expected a share of one core in (0, 1) "
+                            "or a whole number of cores")
         if self.cycle < self.planner.dt - 1e-12:
             raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
         if self.latency is not None:
@@ -303,8 +320,35 @@ def _to_planner(update: Update, mspace: ParameterSpace, space: ParameterSpace) -
     return values, std
 
 
+def core_split(settings: "RunSettings", clocked: bool, cpus: int | None = None) -> tuple[int | None, int, float]:
+    """How a run's CPUs are shared between the planner and the online MHE (``RunSettings.mhe_cores``).
+
+    Args:
+        clocked: the run is on the wall clock (a robot, ``--realtime``); in lock-step the MHE's time
+            is not the planner's, and it keeps one thread.
+        cpus: the CPUs this process may use (default: its affinity).
+    Returns:
+        (planner rollout threads, None for all CPUs; MHE rollout threads; MHE duty: the largest share
+        of wall time the estimator thread may be busy, 1 where it has cores of its own).
+    Raises:
+        AmheError: ``mhe_cores`` would leave the planner no CPU.
+    """
+    s = settings
+    if not clocked or s.mode != "adaptive":
+        return s.threads, 1, 1.0
+    cpus = cpus or default_threads()
+    cores = s.mhe_cores if s.mhe_cores is not None else 1 if cpus >= OWN_CORE_FROM else MHE_DUTY
+    if cores < 1:
+        return s.threads, 1, cores
+    own = int(cores)
+    if s.threads is None and cpus <= own:
+        raise AmheError(f"mhe_cores {own} leaves the planner none of the {cpus} CPU(s) this process may use: "
+                        f"expected fewer than {cpus}, or a share of one core below 1")
+    return (s.threads or cpus - own), own, 1.0
+
+
 def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
-                 truth: dict) -> tuple[Planner, ParameterSpace]:
+                 truth: dict, nthread: int | None = None) -> tuple[Planner, ParameterSpace]:
     """The planner of a run and its parameter space.
 
     The planner's scene is the task's nominal scene at the planner's timestep;
@@ -321,7 +365,7 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     prior = {k: v for k, v in (truth if s.mode == "true" else belief.values).items() if k in RUN_PARAMS}
     space = ParameterSpace(pscene, free=RUN_PARAMS, prior=prior,
                            prior_std=None if s.mode == "true" else _belief_std(belief))
-    return Planner(pscene, space, task, s.planner, nthread=s.threads, seed=s.seed), space
+    return Planner(pscene, space, task, s.planner, nthread=nthread or s.threads, seed=s.seed), space
 
 
 def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float) -> tuple[dict, float]:
@@ -409,13 +453,14 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         if s.mode == "true" and plant.truth_values is None:
             raise AmheError("mode true needs the plant's true parameters, and this plant has none "
                             "(a real robot): use --mode baseline or adaptive")
-        planner, space = make_planner(task, s, belief, plant.truth_values or {})
+        planner_threads, mhe_threads, mhe_duty = core_split(s, clocked)
+        planner, space = make_planner(task, s, belief, plant.truth_values or {}, nthread=planner_threads)
         if s.mode == "adaptive":
             mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
             mspace = ParameterSpace(mscene, free=s.mhe_params, prior=space.values(space.mean0),
                                     prior_std=_belief_std(belief))
             mhe_settings = replace(s.mhe, seed=s.seed)
-            estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=1))
+            estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=mhe_threads))
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
     except BaseException as exc:
@@ -539,8 +584,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 for text in estimator.take_errors():
                     warn(text)
                 if now >= next_update - 1e-9:
-                    if clocked and not estimator.rested(MHE_DUTY):
-                        mhe_deferred += 1  # the planner's core share comes first on the wall clock
+                    if clocked and not estimator.rested(mhe_duty):
+                        mhe_deferred += 1  # the planner's core share comes first on the wall clock,
+                        # and an update still running is not a fault on it
                     elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True
                     else:
@@ -563,8 +609,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         if estimator is not None:
             estimator.close()
     if estimator is not None and mhe_deferred:
-        messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator under "
-                        f"{MHE_DUTY:.0%} of a core on the wall clock")
+        messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator within "
+                        + (f"{mhe_duty:.0%} of a core" if mhe_duty < 1 else f"its {mhe_threads} core(s)")
+                        + " on the wall clock")
     if failure is not None:
         warn(f"run stopped: {failure}")
     traj = plant.recording()

@@ -35,7 +35,7 @@ from amhe_cli.control.reflex import ReflexSettings
 from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "task", "safety",
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task", "safety",
                "reflex"}
 
 
@@ -103,7 +103,7 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
     settings = RunSettings(mode=mode, realtime=realtime, planner=PlannerSettings.from_dict(planner),
                            mhe=MHESettings(**mhe), seed=seed, threads=threads,
                            reflex=ReflexSettings.from_dict(config.get("reflex") or {}),
-                           **{k: _number(config, k) for k in ("kp", "kd", "cycle", "latency")
+                           **{k: _number(config, k) for k in ("kp", "kd", "cycle", "latency", "mhe_cores")
                               if config.get(k) is not None},
                            **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))
     settings.check()

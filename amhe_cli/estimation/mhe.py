@@ -157,16 +157,17 @@ class MHESettings:
 REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
 
 #: The MHE on the wall clock (``run --target go1``, ``run --realtime``, a config's ``latency``), under a
-#: run config's ``mhe:`` keys: ``mhe-replay``'s settings. On the emulated Go1 (default motion capture
-#: noise and latency, 4 CPUs per client, Adaptive, seeds 0–14, 50 s) the library's settings fell in 5 of
-#: 15 T3 runs and 4 of 15 T4 runs (S_R 60 and 67 %); these in 1 and 3 (73 and 80 %), with fewer wild
-#: estimates (T3's worst mass error after the switch 42 % against 59 %) although each update is about
-#: three times the work and so comes less often under the estimator's core budget. Over 70 runs of T1, T3
-#: and T4 (more seeds) 7 falls against 12, S_R 84 against 77 %, T1 alone 2 falls in 20 against none
-#: (docs/evaluation.md). On recorded noisy logs offline they hold m·μ within 10 % in 10 of 16 runs
-#: against 6 (``benchmarks/mhe_accuracy.py``). A tendency, not a margin: T3 re-run with one small change
-#: to the task fell in 4 of 13. The lock-step sim keeps the library's (Table II).
-REALTIME_MHE = dict(REPLAY_SETTINGS)
+#: run config's ``mhe:`` keys: the library's steps and samples, fused. Sized so an update fits the
+#: estimator's core budget and every window is seen: ``mhe-replay``'s settings (20 samples, 300 steps)
+#: cost four times the work, so on the emulated Go1 (4 CPUs per client, the MHE on a core of its own)
+#: 22–57 of a run's updates were deferred, and replayed offline with only every sixth update run they
+#: held m·μ within 10 % in 2–4 of 16 runs against 10 with every one. Measured on the emulated Go1
+#: (default motion capture noise and latency, Adaptive, 60 runs of T1, T3 and T4): with the MHE's own
+#: core these settings fell 2 times (S_R 87 %), ``mhe-replay``'s on half a shared core 7 times (82 %);
+#: T4's μ after its step, worst error from 3 s on, median 0.23 against 0.35, but its mass 33 % against 19 %
+#: (docs/evaluation.md). A tendency (one-sided Fisher p ≈ 0.08 on the falls), not a margin. The lock-step
+#: sim keeps the library's, unfused (Table II).
+REALTIME_MHE = {"fuse": True}
 
 
 @dataclass
