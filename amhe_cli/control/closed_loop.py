@@ -463,6 +463,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=mhe_threads))
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
+                share = (f"{mhe_threads} core(s) of its own" if mhe_duty >= 1 else
+                         f"one thread sharing them, busy at most {mhe_duty:.0%} of a core")
+                note(f"the planner rolls out on {planner.pool.nthread} thread(s), the MHE on {share} (mhe_cores)")
     except BaseException as exc:
         plant.close(f"{type(exc).__name__}: {exc}")
         if planner is not None:
@@ -541,7 +544,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 if hz < MIN_REALTIME_HZ:
                     warn(f"t={t:.2f} s: the planner replans at {hz:.1f} Hz on {planner.pool.nthread} thread(s), "
                          f"under the {MIN_REALTIME_HZ:g} Hz it needs on a robot: give it more cores, or fewer "
-                         "planner samples (--config planner.samples)")
+                         "planner samples (--config planner.samples)"
+                         + (", or the MHE's own core back (mhe_cores: 0.5)" if estimator and mhe_duty >= 1 else ""))
             if view:
                 trunk_path, box_path_pred = planner.mean_path or (None, None)
                 view.plan(t, trunk_path, box_path_pred, plan.compute_time, lead)
