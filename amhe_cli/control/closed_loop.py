@@ -86,9 +86,10 @@ MIN_REALTIME_HZ, RATE_CHECK_CYCLES, RATE_CHECK_SECONDS = 15.0, 20, 2.0
 MHE_DUTY = 0.5
 #: CPUs from which the wall clock's MHE gets a core of its own by default (``RunSettings.mhe_cores``).
 #: On the emulated Go1 with 4 CPUs per client (Adaptive, T1/T3/T4, :data:`~amhe_cli.estimation.mhe.REALTIME_MHE`)
-#: the planner on the other 3 replanned at 19–27 Hz and the runs fell 2 times in 60; the MHE on half a shared
-#: core 7 times (with ``mhe-replay``'s heavier updates, 22–57 of them deferred a run). A second core of its own
-#: left the planner 2 and 20 Hz: 4 falls in 30 (docs/evaluation.md). Below it, a core is too dear to the planner.
+#: the planner on the other 3 replanned at 17–34 Hz and the runs fell 5 times in 70; with the MHE on half a
+#: shared core 8 times (with ``mhe-replay``'s heavier updates, 22–57 of them deferred a run even on a core of
+#: their own). A second core of its own left the planner 2 and 20 Hz: 4 falls in 30 (docs/evaluation.md).
+#: Below 4 CPUs, a core is too dear to the planner.
 OWN_CORE_FROM = 4
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)

@@ -162,11 +162,11 @@ REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
 #: cost four times the work, so on the emulated Go1 (4 CPUs per client, the MHE on a core of its own)
 #: 22–57 of a run's updates were deferred, and replayed offline with only every sixth update run they
 #: held m·μ within 10 % in 2–4 of 16 runs against 10 with every one. Measured on the emulated Go1
-#: (default motion capture noise and latency, Adaptive, 60 runs of T1, T3 and T4): with the MHE's own
-#: core these settings fell 2 times (S_R 87 %), ``mhe-replay``'s on half a shared core 7 times (82 %);
-#: T4's μ after its step, worst error from 3 s on, median 0.23 against 0.35, but its mass 33 % against 19 %
-#: (docs/evaluation.md). A tendency (one-sided Fisher p ≈ 0.08 on the falls), not a margin. The lock-step
-#: sim keeps the library's, unfused (Table II).
+#: (default motion capture noise and latency, Adaptive, 70 runs of T1, T3 and T4): with the MHE's own
+#: core these settings fell 5 times (S_R 83 %), ``mhe-replay``'s on half a shared core 8 times (81 %) —
+#: on T1 and T4 1 against 6, on T3 4 against 2; T4's μ after its step, worst error from 3 s on, median
+#: 0.23 against 0.35, but its mass 33 % against 19 % (docs/evaluation.md). No margin on the falls; taken
+#: for the estimator that runs on time. The lock-step sim keeps the library's, unfused (Table II).
 REALTIME_MHE = {"fuse": True}
 
 
