@@ -189,10 +189,17 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 
 def table(rows: list[dict], tasks, modes) -> None:
-    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, replanning rate, MHE after each change."""
+    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, replanning rate, the medians of a run's
+    lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
+    each change."""
     print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
-          f"{'e_g mean ± std [m]':>19} {'Hz':>5}  MHE from 3 s after each change: worst |mass err| / |μ err|, "
-          "runs within 10 % / 0.05")
+          f"{'e_g mean ± std [m]':>19} {'Hz':>5} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
+          "worst |mass err| / |μ err|, runs within 10 % / 0.05")
+
+    def median(sel, key):
+        got = [r[key] for r in sel if r.get(key) is not None]
+        return f"{np.median(got):g}" if got else "-"
+
     for t in tasks:
         for m in modes:
             sel = [r for r in rows if r["task"] == t and r["mode"] == m]
@@ -212,8 +219,8 @@ def table(rows: list[dict], tasks, modes) -> None:
             print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "
                   f"{sum(r['fell'] for r in sel):5d} {sum(int(r.get('recoveries', 0)) for r in sel):5d} "
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
-                  f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f}   {np.median(hz) if hz else float('nan'):5.1f}  "
-                  + "; ".join(segs))
+                  f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f}   {np.median(hz) if hz else float('nan'):5.1f} "
+                  f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs))
 
 
 def main() -> None:

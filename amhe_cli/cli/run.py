@@ -56,7 +56,9 @@ from amhe_cli.estimation.identify import IdentifySettings
               help="Print only {success, e_g, J, t_exec, rmse, fell, recoveries[, reason][, failure][, probe_belief]} "
                    "as JSON; recoveries counts the fall-prevention reflex's stops, reason says why a run failed, "
                    "probe_belief where the probe's belief was saved.")
-@click.option("--threads", default=None, type=click.IntRange(1, 1024), help="Planner rollout threads (default: all CPUs).")
+@click.option("--threads", default=None, type=click.IntRange(1, 1024),
+              help="Planner rollout threads (default: all CPUs; on the wall clock, less the adaptive MHE's "
+                   "own core where it has one: mhe_cores in docs/config.md).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 @live_option
 def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,

@@ -35,8 +35,8 @@ from amhe_cli.control.reflex import ReflexSettings
 from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
-CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task", "safety",
-               "reflex"}
+CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task",
+               "safety", "reflex"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
