@@ -177,6 +177,34 @@ def test_cli_errors(step_mcap, tmp_path, args, words):
     assert line.startswith("amhe: error:") and all(w in line for w in words)
 
 
+def test_a_live_clock_replay_defers_what_run_would_and_counts_it():
+    """``replay(realtime=True)`` keeps ``run``'s schedule: an update due while the last one runs, or before
+    the thread has rested for ``duty``, is dropped, not queued; the real-time factor is that of every due
+    update. A stub estimator takes 1.2 s an update, due every 0.5 s over 10 s of log."""
+    from types import SimpleNamespace
+
+    from amhe_cli.estimation.mhe import Update
+
+    class Slow:
+        settings = MHESettings(window=1.0, every=0.5)
+
+        def update(self, traj, t):
+            return Update(t=t, mean=np.zeros(1), std=np.ones(1), cost=0.0, iterations=1, compute_time=1.2,
+                          skipped=False)
+
+    traj = SimpleNamespace(t=np.arange(0.0, 10.0 + 1e-9, 0.002))
+    fast = replay(traj, Slow())
+    assert len(fast.updates) == 19 and fast.deferred == 0  # 1.0, 1.5, …, 10.0
+    for duty, every_nth in ((1.0, 3), (0.5, 5)):  # busy 1.2 s: the next start 1.5 s on; resting too: 2.5 s
+        live = replay(traj, Slow(), realtime=True, duty=duty)
+        assert [u.t for u in live.updates] == pytest.approx(np.arange(1.0, 10.0 + 1e-9, 0.5 * every_nth))
+        assert live.deferred == 19 - len(live.updates)
+        np.testing.assert_allclose(live.lags, 1.2)
+        assert live.realtime_factor == pytest.approx(fast.realtime_factor) == pytest.approx(10.0 / (19 * 1.2))
+    with pytest.raises(AmheError, match="duty 0"):
+        replay(traj, Slow(), realtime=True, duty=0.0)
+
+
 def test_settings_check():
     with pytest.raises(AmheError, match="--clip"):
         MHESettings(window=0.5, clip=1.0).check()

@@ -45,7 +45,13 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
 @click.option("--fuse/--no-fuse", default=REPLAY_SETTINGS["fuse"], show_default=True,
               help="Report the window estimates fused per parameter (Kalman arrival cost with change detection; "
                    "the windows themselves are unchanged). The CSV adds each window's own estimate as <name>_window.")
-@click.option("--realtime", is_flag=True, help="Replay on the live clock: estimates usable only after their compute.")
+@click.option("--realtime", is_flag=True,
+              help="Replay on the live clock as `amhe run`'s estimator lives: an update due while the last one "
+                   "still runs is deferred (dropped), and an estimate is usable only after its compute.")
+@click.option("--duty", default=None, type=click.FloatRange(0, 1, min_open=True),
+              help="With --realtime: the share of a core the estimator may keep busy, deferring updates to stay "
+                   "under it, as `amhe run` does where the MHE shares the planner's CPUs (0.5 there; "
+                   "default 1: a core of its own).")
 @click.option("--truth", "truth_csv", type=click.Path(), default=None,
               help="Ground-truth CSV (default: <log stem>.truth.csv beside the log, if any).")
 @click.option("--sweep", default=None, metavar="NAME=V1,V2,…",
@@ -67,7 +73,7 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, realtime, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live, force,
+                   clip, max_steps, fuse, realtime, duty, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live, force,
                    as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
@@ -85,6 +91,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     settings.check()
     free = parse_names(params)
     smooth = parse_smooth(smooth)
+    if duty is not None and not realtime:
+        raise AmheError(f"--duty {duty:g} shares the live clock's core: it needs --realtime")
     if sweep is not None:
         if out or mcap_out or plot or live:
             raise AmheError("--sweep prints a table and writes no file: drop --out, --mcap, --plot and --live")
@@ -121,7 +129,7 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         with MovingHorizonEstimator(problem.scene, problem.space, st, StateWeights.for_log(problem.traj),
                                     nthread=threads) as mhe:
             hook = None if view is None else _view_hook(view, problem, truth)
-            res = replay(problem.traj, mhe, realtime=realtime, progress=lambda t: bar.update(t - bar.n),
+            res = replay(problem.traj, mhe, realtime=realtime, duty=duty or 1.0, progress=lambda t: bar.update(t - bar.n),
                          on_update=hook)
         bar.close()
         return res
@@ -196,7 +204,7 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     summary = {
         "updates": len(res.updates), "informative_updates": int((~skipped).sum()),
         "final": {h: float(table[-1, i]) for i, h in enumerate(head) if i > 0} if len(table) else {},
-        "realtime": res.realtime, "realtime_factor": res.realtime_factor, "behind": res.behind,
+        "realtime": res.realtime, "realtime_factor": res.realtime_factor, "deferred": res.deferred,
         "lag_s": {"mean": float(lags.mean()) if len(lags) else 0.0, "max": float(lags.max()) if len(lags) else 0.0},
         "tracking_error": errors, "csv": str(out_path),
     }
@@ -223,8 +231,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
             f"{k} {v:.2f} %" if k == "box_mass" else f"{k} {v:.4f}" for k, v in errors.items()))
         click.echo(f"  ({TRACKING_ERROR_TEXT})")
     if realtime:
-        click.echo(f"realtime factor {res.realtime_factor:.2f}; {res.behind} update(s) fell behind; "
-                   f"lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
+        why = "the last one still running" + (f", or resting under --duty {duty:g}" if duty else "")
+        click.echo(f"realtime factor {res.realtime_factor:.2f}; {res.deferred} of {res.deferred + len(res.updates)} "
+                   f"due update(s) deferred ({why}); lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
     click.echo(f"estimates written to {out_path}" + (f", {mcap_path}" if mcap_path else "")
                + (f"; plot to {plot_path}" if plot_path else ""))
 

@@ -50,6 +50,7 @@ from amhe_cli.errors import AmheError, check_names
 from amhe_cli.io.quat import quat_to_yaw
 from amhe_cli.io.writer import write_mcap
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, Update
+from amhe_cli.estimation.mhe import rested as mhe_rested
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.plants.base import Plant, PlantFailure
 from amhe_cli.plants.sim import SimPlant
@@ -122,8 +123,7 @@ class EstimatorThread:
     def rested(self, duty: float) -> bool:
         """Idle long enough since the last update that starting one now keeps the thread's busy
         share of wall time at most ``duty`` (0 < duty <= 1)."""
-        idle = time.monotonic() - self.finished_at
-        return not self.busy and idle >= self.compute_time * (1.0 / duty - 1.0)
+        return not self.busy and mhe_rested(time.monotonic() - self.finished_at, self.compute_time, duty)
 
     def submit(self, traj: Trajectory, t: float) -> bool:
         """Start an update over ``traj`` up to ``t`` [s]; False (nothing started) while one still runs."""

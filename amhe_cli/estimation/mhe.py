@@ -170,6 +170,17 @@ REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
 REALTIME_MHE = {"fuse": True}
 
 
+def rested(idle: float, compute_time: float, duty: float) -> bool:
+    """Whether the online estimator, idle for ``idle`` [s] since an update that took ``compute_time`` [s],
+    may start the next one and keep its busy share of wall time at most ``duty`` (0 < duty <= 1).
+
+    The wall clock's rule beside a planner (``run``: ``RunSettings.mhe_cores``), replayed offline by
+    :func:`~amhe_cli.estimation.replay.replay` (``mhe-replay --realtime --duty``): an update due before
+    it holds is deferred — dropped, not queued — and the next due one is tried.
+    """
+    return idle >= compute_time * (1.0 / duty - 1.0)
+
+
 @dataclass
 class Update:
     """One MHE update.

@@ -5,14 +5,18 @@ recorded trajectory. Two clocks:
 
 * as fast as possible (default): an update at every ``Δt_update`` of log time,
   each estimate stamped with the end of its window;
-* ``realtime=True``: as the online estimator thread would live beside a robot.
-  Log time runs at wall-clock pace; an update starts when it is due *and* the
-  previous one has finished, sees the data up to its start, and its estimate
-  becomes usable only ``compute_time`` later. Updates that start late (fell
-  behind) are counted, each update's lag (usable time − data time) is kept, and
-  the real-time factor is log duration ÷ compute time. The replay does not sleep:
-  the schedule follows from the measured compute times, which is what a live
-  thread on an otherwise idle core would see.
+* ``realtime=True``: as ``run``'s estimator thread lives beside a robot. Log time
+  runs at wall-clock pace; an update due while the last one still runs, or before
+  the thread has rested enough to stay within ``duty`` of a core
+  (:func:`~amhe_cli.estimation.mhe.rested`), is deferred — dropped, as ``run``
+  drops it, not queued — and the next due one is tried. An update that runs sees
+  the data up to its due time and its estimate becomes usable ``compute_time``
+  later. Deferred updates are counted, each update's lag (usable time − data time)
+  is kept. The replay does not sleep: the schedule follows from the measured
+  compute times, which is what a live thread on an otherwise idle core would see.
+
+Either way the real-time factor is the log's duration ÷ the compute that every due
+update would take (≥ 1: the estimator keeps up with every window).
 
 Ground truth, where the log has it, comes from :func:`truth_series`.
 """
@@ -26,7 +30,8 @@ from typing import Callable
 
 import numpy as np
 
-from amhe_cli.estimation.mhe import MovingHorizonEstimator, Update
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.mhe import MovingHorizonEstimator, Update, rested
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.io.trajectory import Trajectory
 
@@ -38,23 +43,25 @@ class ReplayResult:
     Attributes:
         updates: every update, in order.
         usable_at: (n,) log time [s] at which each estimate became usable.
-        behind: number of updates that started later than scheduled (realtime only).
-        compute_time: total estimator compute [s].
+        deferred: updates that were due and not run (realtime only: the estimator was busy or resting).
+        compute_time: total estimator compute of the updates run [s].
         duration: log time replayed [s].
         realtime: which clock was used.
     """
 
     updates: list[Update]
     usable_at: np.ndarray
-    behind: int
+    deferred: int
     compute_time: float
     duration: float
     realtime: bool
 
     @property
     def realtime_factor(self) -> float:
-        """Log duration ÷ estimator compute time (≥ 1: the estimator keeps up)."""
-        return self.duration / max(self.compute_time, 1e-9)
+        """Log duration ÷ the compute every due update would take at the mean measured (≥ 1: the
+        estimator keeps up with every window)."""
+        due = len(self.updates) + self.deferred
+        return self.duration * len(self.updates) / max(due * self.compute_time, 1e-9)
 
     @property
     def lags(self) -> np.ndarray:
@@ -62,34 +69,43 @@ class ReplayResult:
         return self.usable_at - np.array([u.t for u in self.updates])
 
 
-def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False,
+def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False, duty: float = 1.0,
            progress: Callable[[float], None] | None = None,
            on_update: Callable[[Update], None] | None = None) -> ReplayResult:
     """Run ``mhe`` along ``traj`` (see the module docstring for the two clocks).
 
-    ``progress`` is called with the log time reached after each update, ``on_update`` with each
-    :class:`~amhe_cli.estimation.mhe.Update` as it is made (the live view's hook).
+    Args:
+        realtime: replay on the live clock, deferring what ``run`` would defer.
+        duty: with ``realtime``, the largest share of wall time the estimator may be busy (0 < duty <= 1):
+            1 on a core of its own, ``run``'s ``MHE_DUTY`` where it shares the planner's CPUs.
+        progress: called with the log time reached after each update.
+        on_update: called with each :class:`~amhe_cli.estimation.mhe.Update` as it is made (the live view's hook).
+    Raises:
+        AmheError: ``duty`` outside (0, 1].
     """
+    if not 0 < duty <= 1:
+        raise AmheError(f"duty {duty}: expected the estimator's share of a core in (0, 1]")
     s = mhe.settings
     t_end = float(traj.t[-1])
     due = float(traj.t[0]) + s.window
-    clock = due  # log time "now" on the live clock
-    updates, usable, behind, total = [], [], 0, 0.0
+    free_at, last = -np.inf, 0.0  # live clock: when the last update finished, what it took [s]
+    updates, usable, deferred, total = [], [], 0, 0.0
     while due <= t_end + 1e-9:
-        start = max(due, clock) if realtime else due
-        if realtime and start > due + 1e-9:
-            behind += 1
-        u = mhe.update(traj, min(start, t_end))
+        if realtime and not (due >= free_at and rested(due - free_at, last, duty)):
+            deferred += 1
+            due += s.every
+            continue
+        u = mhe.update(traj, due)
         total += u.compute_time
         updates.append(u)
         if on_update is not None:
             on_update(u)
-        usable.append(start + u.compute_time if realtime else u.t)
-        clock = start + u.compute_time
-        due += s.every
+        usable.append(due + u.compute_time if realtime else u.t)
+        free_at, last = due + u.compute_time, u.compute_time
         if progress:
-            progress(min(start, t_end))
-    return ReplayResult(updates, np.array(usable), behind, total, t_end - float(traj.t[0]), realtime)
+            progress(due)
+        due += s.every
+    return ReplayResult(updates, np.array(usable), deferred, total, t_end - float(traj.t[0]), realtime)
 
 
 # -- ground truth -------------------------------------------------------------------
