@@ -34,7 +34,8 @@ def main() -> None:
     print(f"log {log}: {res.duration:.1f} s, {len(res.updates)} updates run, due every {settings.every} s "
           f"({len(busy)} informative), window {settings.window} s")
     print(f"compute per informative update: mean {sum(busy) / max(len(busy), 1):.3f} s, max {max(busy, default=0):.3f} s")
-    print(f"deferred: {res.deferred} of {res.deferred + len(res.updates)}; lag mean {res.lags.mean():.3f} s, max {res.lags.max():.3f} s")
+    print(f"deferred: {res.deferred} of {res.deferred + len(res.updates)}; "
+          f"lag mean {res.lags.mean():.3f} s, max {res.lags.max():.3f} s")
     print(f"realtime_factor={res.realtime_factor:.2f}")
 
 

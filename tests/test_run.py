@@ -652,7 +652,8 @@ def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_update
             RunSettings(**wall, mhe_cores=bad).check()
     assert run_settings("t4", "adaptive", {"mhe_cores": 2})[1].mhe_cores == 2
     own = run_task(get_task("t1", duration=0.6), belief(),
-                   RunSettings(mode="adaptive", realtime=True, planner=PlannerSettings(**SMALL), mhe_cores=1, threads=1))
+                   RunSettings(mode="adaptive", realtime=True, planner=PlannerSettings(**SMALL), mhe_cores=1,
+                               threads=1))
     assert "the planner rolls out on 1 thread(s), the MHE on 1 core(s) of its own (mhe_cores)" in own.messages
 
     class Slow:  # an estimator whose update takes 0.2 s of wall time

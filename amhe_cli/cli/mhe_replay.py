@@ -73,8 +73,8 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, realtime, duty, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live, force,
-                   as_json, plot, quiet):
+                   clip, max_steps, fuse, realtime, duty, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
+                   force, as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
     Outputs (--out CSV, --mcap, --plot) are refused if they exist, unless
@@ -129,8 +129,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         with MovingHorizonEstimator(problem.scene, problem.space, st, StateWeights.for_log(problem.traj),
                                     nthread=threads) as mhe:
             hook = None if view is None else _view_hook(view, problem, truth)
-            res = replay(problem.traj, mhe, realtime=realtime, duty=duty or 1.0, progress=lambda t: bar.update(t - bar.n),
-                         on_update=hook)
+            res = replay(problem.traj, mhe, realtime=realtime, duty=duty or 1.0,
+                         progress=lambda t: bar.update(t - bar.n), on_update=hook)
         bar.close()
         return res
 
