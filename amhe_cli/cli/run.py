@@ -220,7 +220,7 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     Returns:
         (plant, placed task, starting belief).
     """
-    from amhe_cli.control.closed_loop import RUN_PARAMS, task_scene_config
+    from amhe_cli.control.closed_loop import RUN_PARAMS, describe_split, task_scene_config
     from amhe_cli.estimation.belief import Belief
     from amhe_cli.io.quat import quat_to_yaw
     from amhe_cli.model.params import ParameterSpace
@@ -235,12 +235,14 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
         if not quiet:
             click.echo("no --belief: starting from the nominal prior (" + ", ".join(
                 f"{k} {fmt(v)}" for k, v in start.values.items() if k in ("box_mass", "box_friction")) + ")", err=True)
+    split = describe_split(settings, clocked=True)  # a split that leaves the planner nothing stops before the link
     go1 = Go1Settings(robot=parse_address(robot, 8007), local_port=local_port, mocap=mocap, base_body=base_body,
                       box_body=box_body, arm=arm, kp=settings.kp, kd=settings.kd,
                       safety=SafetySettings.from_dict(cfg.get("safety")))
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     plant = Go1Plant(scene, go1)
     if not quiet:
+        click.echo(f"go1: {split}", err=True)
         click.echo(f"go1: waiting for {robot} and poses from {mocap} ({base_body}, {box_body}); "
                    f"{'ARMED' if arm else 'dry run: damping packets only'}", err=True)
     m = plant.start()

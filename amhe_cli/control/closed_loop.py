@@ -348,6 +348,21 @@ def core_split(settings: "RunSettings", clocked: bool, cpus: int | None = None) 
     return (s.threads or cpus - own), own, 1.0
 
 
+def describe_split(settings: "RunSettings", clocked: bool, cpus: int | None = None) -> str:
+    """One line on :func:`core_split`'s answer, as the run's log and ``run --target go1`` state it.
+
+    Raises:
+        AmheError: as :func:`core_split`.
+    """
+    planner_threads, mhe_threads, duty = core_split(settings, clocked, cpus)
+    cpus = cpus or default_threads()
+    text = f"the planner rolls out on {planner_threads or cpus} thread(s)"
+    if settings.mode != "adaptive":
+        return text
+    return text + ", the MHE on " + (f"{mhe_threads} core(s) of its own" if duty >= 1 else
+                                     f"one thread sharing them, busy at most {duty:.0%} of a core") + " (mhe_cores)"
+
+
 def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
                  truth: dict, nthread: int | None = None) -> tuple[Planner, ParameterSpace]:
     """The planner of a run and its parameter space.
@@ -464,9 +479,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=mhe_threads))
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
-                share = (f"{mhe_threads} core(s) of its own" if mhe_duty >= 1 else
-                         f"one thread sharing them, busy at most {mhe_duty:.0%} of a core")
-                note(f"the planner rolls out on {planner.pool.nthread} thread(s), the MHE on {share} (mhe_cores)")
+                note(describe_split(s, clocked))
     except BaseException as exc:
         plant.close(f"{type(exc).__name__}: {exc}")
         if planner is not None:
