@@ -90,7 +90,7 @@ MHE_DUTY = 0.5
 #: the planner on the other 3 replanned at 17–34 Hz and the runs fell 5 times in 70; with the MHE on half a
 #: shared core 8 times (with ``mhe-replay``'s heavier updates, 22–57 of them deferred a run even on a core of
 #: their own). A second core of its own left the planner 2 and 20 Hz: 4 falls in 30 (docs/evaluation.md).
-#: Below 4 CPUs, a core is too dear to the planner.
+#: Below 4 CPUs a core is too dear to the planner: on a 2-CPU client with the MHE on one, it replanned at 9–15 Hz.
 OWN_CORE_FROM = 4
 #: Box edge lengths of the task scenes [m] (the public Go1 box-pushing box).
 TASK_BOX_SIZE = (0.38, 0.38, 0.38)
