@@ -258,7 +258,7 @@ class RunResult:
             parameters each time they changed (t = plant time of the swap).
         labels: (d,) labels of the estimate columns.
         messages: the run's log (plant events, phase changes and all of ``warnings``).
-        warnings: the messages a user should see: a fall, a lost box, estimator failures and skipped updates.
+        warnings: the messages a user should see: a fall, a lost box, estimator failures.
         failure: why the plant stopped early (a safety trip, a lost link), else None.
         extras: the plant's raw streams (:meth:`~amhe_cli.plants.base.Plant.extras`), recorded beside the trajectory.
     """
@@ -354,8 +354,8 @@ def describe_split(settings: "RunSettings", clocked: bool, cpus: int | None = No
     Raises:
         AmheError: as :func:`core_split`.
     """
-    planner_threads, mhe_threads, duty = core_split(settings, clocked, cpus)
     cpus = cpus or default_threads()
+    planner_threads, mhe_threads, duty = core_split(settings, clocked, cpus)
     text = f"the planner rolls out on {planner_threads or cpus} thread(s)"
     if settings.mode != "adaptive":
         return text
@@ -602,13 +602,12 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 for text in estimator.take_errors():
                     warn(text)
                 if now >= next_update - 1e-9:
+                    # the wall clock defers an update while the last one runs or the thread rests (the planner's
+                    # core share comes first); the lock-step loop waited for it above: submit never finds it busy
                     if clocked and not estimator.rested(mhe_duty):
-                        mhe_deferred += 1  # the planner's core share comes first on the wall clock,
-                        # and an update still running is not a fault on it
+                        mhe_deferred += 1
                     elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True
-                    else:
-                        warn(f"t={now:.2f} s: MHE update skipped, the last one is still running")
                     next_update += s.mhe.every
             for text in plant.take_messages():
                 warn(f"t={now:.2f} s: {text}")
