@@ -27,6 +27,7 @@ import json
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
 
 import numpy as np
 
@@ -102,6 +103,12 @@ def one(args) -> dict:
     return row
 
 
+def probe_task(task_name: str, config: dict, threads: int) -> Belief:
+    """The task's probe belief, as ``amhe evaluate`` starts Baseline and Adaptive from."""
+    task, _ = run_settings(task_name, "adaptive", config)
+    return probe_belief(task, seed=0, threads=threads)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", default="t2")
@@ -113,6 +120,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=None, help="time limit per run [s] (default: the task's)")
     ap.add_argument("--before", type=float, default=2.0, help="seconds of timeline before a fall")
     ap.add_argument("--out", default=None, help="append each run's JSON line here too")
+    ap.add_argument("--beliefs", default=None, metavar="DIR",
+                    help="starting beliefs as DIR/<task>.belief.yaml: read where there, else probed (one process a "
+                         "task, in parallel) and saved there for the next call")
     ap.add_argument("--rescue", default="",
                     help="seconds before each fall to restart the recovery from, e.g. 0.5,0.4,0.3")
     a = ap.parse_args()
@@ -120,9 +130,17 @@ def main() -> None:
     tasks, modes = a.tasks.split(","), a.modes.split(",")
     beliefs = {}
     if set(modes) - {"true"}:
-        for t in tasks:
-            task, _ = run_settings(t, "adaptive", config)
-            beliefs[t] = probe_belief(task, seed=0, threads=min(a.jobs, 4)).__dict__
+        saved = {t: Path(a.beliefs) / f"{t}.belief.yaml" for t in tasks} if a.beliefs else {}
+        beliefs = {t: Belief.load(p).__dict__ for t, p in saved.items() if p.exists()}
+        todo = [t for t in tasks if t not in beliefs]
+        threads = max(1, min(4, a.jobs // max(len(todo), 1)))
+        with ProcessPoolExecutor(max_workers=max(len(todo), 1)) as pool:
+            probed = dict(zip(todo, pool.map(probe_task, todo, [config] * len(todo), [threads] * len(todo))))
+        for t, b in probed.items():
+            beliefs[t] = b.__dict__
+            if t in saved:
+                saved[t].parent.mkdir(parents=True, exist_ok=True)
+                b.save(saved[t])
     rescue_at = [float(x) for x in a.rescue.split(",") if x]
     jobs = [(t, m, s, config, beliefs.get(t) if m != "true" else None, a.before, a.duration, rescue_at)
             for s in range(a.first_seed, a.first_seed + a.seeds) for t in tasks for m in modes]
