@@ -146,6 +146,7 @@ class Scene:
         self.model = _build(self.config)
         m = self.model
         self.box_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "box")
+        self._feet_kin = None  # (MjData, foot geom ids) for foot_centres, made on first use
         self.region_pairs = np.array(
             [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PAIR, f"box_floor_{i}") for i in range(len(self.config.regions))]
         )
@@ -216,8 +217,9 @@ class Scene:
     def foot_centres(self, qpos: np.ndarray) -> np.ndarray:
         """(N, 4, 3) world positions of the foot-sphere centres [m] (:data:`FEET` order) for (N, nq) states."""
         m = self.model
-        d = mujoco.MjData(m)
-        gids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET]
+        if self._feet_kin is None:  # the closed loop asks every cycle: one MjData, kept
+            self._feet_kin = (mujoco.MjData(m), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET])
+        d, gids = self._feet_kin
         qpos = np.atleast_2d(qpos)
         out = np.empty((len(qpos), 4, 3))
         for i, q in enumerate(qpos):
