@@ -17,7 +17,8 @@ the robot fell again and its largest tilt (``rescue`` in the run's line). Compar
 on the same falls separates a search that cannot find the saving action from a state already
 beyond saving.
 
-Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``).
+Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``); ``--beliefs DIR``
+keeps the probed beliefs there, so a grid split over several calls (``--first-seed``) probes once.
 """
 
 from __future__ import annotations

@@ -217,7 +217,7 @@ class Scene:
     def foot_centres(self, qpos: np.ndarray) -> np.ndarray:
         """(N, 4, 3) world positions of the foot-sphere centres [m] (:data:`FEET` order) for (N, nq) states."""
         m = self.model
-        if self._feet_kin is None:  # the closed loop asks every cycle: one MjData, kept
+        if self._feet_kin is None:  # asked once per state of a recording (fall forensics): one MjData, kept
             self._feet_kin = (mujoco.MjData(m), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, f) for f in FEET])
         d, gids = self._feet_kin
         qpos = np.atleast_2d(qpos)
