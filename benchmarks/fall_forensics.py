@@ -134,9 +134,11 @@ def main() -> None:
         saved = {t: Path(a.beliefs) / f"{t}.belief.yaml" for t in tasks} if a.beliefs else {}
         beliefs = {t: Belief.load(p).__dict__ for t, p in saved.items() if p.exists()}
         todo = [t for t in tasks if t not in beliefs]
-        threads = max(1, min(4, a.jobs // max(len(todo), 1)))
-        with ProcessPoolExecutor(max_workers=max(len(todo), 1)) as pool:
-            probed = dict(zip(todo, pool.map(probe_task, todo, [config] * len(todo), [threads] * len(todo))))
+        probed = {}
+        if todo:
+            threads = max(1, min(4, a.jobs // len(todo)))
+            with ProcessPoolExecutor(max_workers=len(todo)) as pool:
+                probed = dict(zip(todo, pool.map(probe_task, todo, [config] * len(todo), [threads] * len(todo))))
         for t, b in probed.items():
             beliefs[t] = b.__dict__
             if t in saved:

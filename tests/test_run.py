@@ -658,19 +658,6 @@ def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_update
     assert describe_split(RunSettings(mode="baseline"), clocked=True, cpus=4) == "the planner rolls out on 4 thread(s)"
     assert describe_split(RunSettings(**wall), clocked=True, cpus=2).endswith("busy at most 50% of a core (mhe_cores)")
 
-
-def test_a_robot_run_whose_mhe_cores_leave_the_planner_nothing_stops_before_the_link(capsys, tmp_path):
-    from amhe_cli.model.rollout import default_threads
-    cpus = default_threads()  # what this process may use: an MHE of as many cores leaves the planner none
-    if cpus > 64:
-        pytest.skip("mhe_cores stops at 64")
-    bad = tmp_path / "bad.yaml"
-    bad.write_text(f"mhe_cores: {cpus}\n")
-    proc = amhe(capsys, "run", "--task", "t1", "--target", "go1", "--robot", "127.0.0.1:9", "--mode", "adaptive",
-                "--config", str(bad), "--out", str(tmp_path / "r.mcap"))
-    one_line_error(proc, f"mhe_cores {cpus} leaves the planner none of the {cpus} CPU(s)")
-    assert not (tmp_path / "r.mcap").exists()
-
     class Slow:  # an estimator whose update takes 0.2 s of wall time
         def update(self, traj, t):
             time.sleep(0.2)
@@ -687,6 +674,19 @@ def test_a_robot_run_whose_mhe_cores_leave_the_planner_nothing_stops_before_the_
     time.sleep(0.25)
     assert thread.rested(0.5)
     thread.close()
+
+
+def test_a_robot_run_whose_mhe_cores_leave_the_planner_nothing_stops_before_the_link(capsys, tmp_path):
+    from amhe_cli.model.rollout import default_threads
+    cpus = default_threads()  # what this process may use: an MHE of as many cores leaves the planner none
+    if cpus > 64:
+        pytest.skip("mhe_cores stops at 64")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"mhe_cores: {cpus}\n")
+    proc = amhe(capsys, "run", "--task", "t1", "--target", "go1", "--robot", "127.0.0.1:9", "--mode", "adaptive",
+                "--config", str(bad), "--out", str(tmp_path / "r.mcap"))
+    one_line_error(proc, f"mhe_cores {cpus} leaves the planner none of the {cpus} CPU(s)")
+    assert not (tmp_path / "r.mcap").exists()
 
 
 def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and_is_refused_off_the_sim():
