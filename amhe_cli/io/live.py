@@ -46,6 +46,8 @@ EVENT_QUEUE = 256
 #: The static scene (and the last of each :data:`LATCHED` kind) is re-sent this often [s] and when a
 #: viewer subscribes, so a viewer that joins late sees the robot and the current belief.
 SCENE_PERIOD = 2.0
+#: How long the server keeps its viewers' connections open after the last message at the end [s].
+LINGER = 0.5
 #: Event kinds whose last message a late viewer gets again (a belief may not change for a whole run).
 LATCHED = ("belief", "safety")
 
@@ -182,7 +184,8 @@ class LiveServer:
         return float(self._stats[2]) if self._stats is not None else 0.0
 
     def close(self) -> None:
-        """Let the server send what is queued (up to 1 s), then stop its process. Safe to call twice."""
+        """Let the server send what is queued (up to 1 s) and its viewers receive it (:data:`LINGER` s),
+        then stop its process. Safe to call twice."""
         if self._proc is None:
             return
         try:
@@ -236,6 +239,7 @@ def _serve(frames: ViewFrames, host: str, port: int, name: str, inbox: socket.so
     sender.cpu0 = time.process_time()  # what the view costs from here on, not the imports
     try:
         sender.run(inbox, parent)
+        sender.linger()
     finally:
         sender.stop()
 
@@ -275,6 +279,13 @@ class _Sender:
             schema = fg.Schema(name=msgtype, encoding="ros2msg", data=msgdef(msgtype).encode())
             self.channels[topic] = fg.Channel(topic, schema=schema, message_encoding="cdr", context=ctx)
             self.encoders[topic] = encoder(msgtype)
+
+    def linger(self) -> None:
+        """Give the SDK :data:`LINGER` s to write what was logged to the viewers' sockets before the
+        server stops: its stop closes the connections without sending what they still queue, so the
+        run's last messages (its closing log line) would otherwise be lost."""
+        if any(ch.has_sinks() for ch in self.channels.values()):
+            time.sleep(LINGER)
 
     def stop(self) -> None:
         if self.server is not None:
