@@ -432,6 +432,37 @@ def test_the_waypoint_reference_moves_at_the_commanded_speed_so_a_lunge_costs_mo
     np.testing.assert_allclose(t5.waypoint_reference(c5, 0.5), c5["waypoint"])
 
 
+def test_the_heading_reference_turns_at_the_largest_yaw_rate_so_a_twist_costs_more():
+    """Turning round toward a far heading, the trunk's heading reference turns from where it faced at
+    MAX_YAW_RATE: a trunk twisting faster pays, where a fixed heading paid it for every degree gained."""
+    from amhe_cli.control.tasks import MAX_YAW_RATE
+    task = get_task("t1")
+    box = np.array([1.0, 0.0])
+    cmd = task.command(np.array([1.6, 0.1]), 0.0, box, HALF_DEPTH)  # past the box, facing away from it
+    assert cmd["phase"] == "approach" and abs(cmd["yaw"]) > 2.0
+    err = float(np.angle(np.exp(1j * cmd["yaw"])))
+    ref = task.heading_reference(cmd, np.array([0.0, 0.5, 100.0]))
+    assert ref[0] == pytest.approx(0.0)
+    assert ref[1] == pytest.approx(np.sign(err) * MAX_YAW_RATE * 0.5)
+    assert np.angle(np.exp(1j * (ref[2] - cmd["yaw"]))) == pytest.approx(0.0, abs=1e-12)  # never past it
+
+    def cost(yaw, tau, c=cmd):
+        q = np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)])
+        return float(task.stage_cost(np.array([1.6, 0.1, BASE_HEIGHT]), q, np.zeros(3), np.zeros(3),
+                                     np.array([*box, 0.19]), STAND_JOINTS, STAND_JOINTS, c, tau))
+    on_pace, twisted = ref[1], 3 * ref[1]
+    assert cost(on_pace, 0.5) < cost(twisted, 0.5)
+    fixed = {**cmd, "base": None}  # the executed cost J: the heading itself, as before
+    assert cost(twisted, 0.5, fixed) < cost(on_pace, 0.5, fixed)
+    # a small correction is reached within the horizon; the one-leg push keeps its heading
+    near = task.command(np.array([0.4, 0.05]), 0.05, box, HALF_DEPTH)
+    assert near["phase"] == "push"
+    assert task.heading_reference(near, 0.4) == pytest.approx(near["yaw"])
+    t5 = get_task("t5")
+    c5 = t5.command(np.array(t5.robot_pose[:2]) + 0.05, t5.robot_pose[2] + 0.3, np.array(t5.box_start), HALF_DEPTH)
+    assert t5.heading_reference(c5, 0.1) == c5["yaw"]
+
+
 def test_stage_cost_penalises_a_tipped_box_not_its_yaw():
     from amhe_cli.io.quat import quat_from_rotvec
     task = get_task("t4")

@@ -287,7 +287,8 @@ class Task:
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
             for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
             of its reference, ``phase`` ``"push"`` or ``"approach"``, ``base`` (2,) the
-            trunk now (where :meth:`waypoint_reference` starts); the one-leg
+            trunk now (where :meth:`waypoint_reference` starts), ``base_yaw`` its heading now [rad]
+            (where :meth:`heading_reference` starts); the one-leg
             push adds ``reach`` (see :meth:`reach`) and ``box_yaw`` (the box's yaw now, [rad]).
         """
         half_width = half_depth if half_width is None else half_width
@@ -297,7 +298,8 @@ class Task:
         slow = float(np.clip((to_goal - self.goal_tol) / self.slow_radius, 0.0, 1.0))
         slow = self.slow_floor + (1.0 - self.slow_floor) * slow
         box_speed = self.box_speed * slow
-        out = {"target": target, "box": box_xy.copy(), "box_speed": box_speed, "phase": "push", "base": base_xy.copy()}
+        out = {"target": target, "box": box_xy.copy(), "box_speed": box_speed, "phase": "push", "base": base_xy.copy(),
+               "base_yaw": float(base_yaw)}
         if self.push_side:  # T5: robot stays; box goes sideways
             d = np.subtract(self.goal, self.box_start)
             d = d / max(float(np.linalg.norm(d)), 1e-9)  # along the push, fixed in the world
@@ -428,7 +430,7 @@ class Task:
         c += (w.stance if self.push_side else w.waypoint) * np.sum(
             (base_pos[..., :2] - self.waypoint_reference(cmd, tau)) ** 2, axis=-1)
         heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
-        c += w.heading * (1 - np.cos(yaw - cmd["yaw"]))
+        c += w.heading * (1 - np.cos(yaw - self.heading_reference(cmd, tau)))
         c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
         c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]) ** 2
         height = base_pos[..., 2] - floor
@@ -468,6 +470,22 @@ class Task:
         if dist < 1e-9:
             return np.broadcast_to(goal, tau.shape[:-1] + (2,))
         return start + delta / dist * np.minimum(cmd["speed"] * tau, dist)
+
+    def heading_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray | float:
+        """(...) the heading [rad] the trunk should have ``tau`` [s] into the horizon: from its heading at the
+        cycle start (``cmd['base_yaw']``) toward ``cmd['yaw']`` at :data:`MAX_YAW_RATE`, never past it.
+
+        The heading's counterpart of :meth:`waypoint_reference`. A fixed heading paid the planner for every
+        degree it gained on a far one, so turning round (the approach, T2's curve) it twisted the trunk at
+        1.1–1.35 rad/s, three times the most the gait is asked to turn, in 4 of the 19 recorded falls with a
+        timeline (docs/fall_prevention.md). The one-leg push and a command without ``base`` (the executed
+        cost ``J``) keep the fixed heading.
+        """
+        start = cmd.get("base_yaw")
+        if self.push_side or cmd.get("base") is None or start is None:
+            return cmd["yaw"]
+        err = _yaw_error(cmd["yaw"], start)
+        return start + np.sign(err) * np.minimum(MAX_YAW_RATE * np.asarray(tau, dtype=float), abs(err))
 
     def _box_term(self, box_pos: np.ndarray, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
         """(...) ``w_box`` × squared distance of the box to its reference, per (10 cm)²."""
