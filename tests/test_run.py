@@ -432,11 +432,12 @@ def test_the_waypoint_reference_moves_at_the_commanded_speed_so_a_lunge_costs_mo
     np.testing.assert_allclose(t5.waypoint_reference(c5, 0.5), c5["waypoint"])
 
 
-def test_the_heading_reference_turns_at_the_largest_yaw_rate_so_a_twist_costs_more():
-    """Turning round toward a far heading, the trunk's heading reference turns from where it faced at
-    MAX_YAW_RATE: a trunk twisting faster pays, where a fixed heading paid it for every degree gained."""
+def test_a_heading_rate_turns_the_heading_reference_so_a_twist_costs_more():
+    """With ``heading_rate``, turning round toward a far heading, the trunk's heading reference turns from
+    where it faced at that rate: a trunk twisting faster pays, where a fixed heading (the default) paid
+    it for every degree gained."""
     from amhe_cli.control.tasks import MAX_YAW_RATE
-    task = get_task("t1")
+    task = get_task("t1", heading_rate=MAX_YAW_RATE)
     box = np.array([1.0, 0.0])
     cmd = task.command(np.array([1.6, 0.1]), 0.0, box, HALF_DEPTH)  # past the box, facing away from it
     assert cmd["phase"] == "approach" and abs(cmd["yaw"]) > 2.0
@@ -454,11 +455,16 @@ def test_the_heading_reference_turns_at_the_largest_yaw_rate_so_a_twist_costs_mo
     assert cost(on_pace, 0.5) < cost(twisted, 0.5)
     fixed = {**cmd, "base": None}  # the executed cost J: the heading itself, as before
     assert cost(twisted, 0.5, fixed) < cost(on_pace, 0.5, fixed)
+    assert get_task("t1").heading_reference(cmd, 0.5) == cmd["yaw"]  # the default: fixed
+    assert run_settings("t1", "true", {"task": {"heading_rate": 0.45}})[0].heading_rate == 0.45  # a run config's
+    for bad in (-0.1, "fast"):
+        with pytest.raises(AmheError, match="heading_rate"):
+            get_task("t1", heading_rate=bad)
     # a small correction is reached within the horizon; the one-leg push keeps its heading
     near = task.command(np.array([0.4, 0.05]), 0.05, box, HALF_DEPTH)
     assert near["phase"] == "push"
     assert task.heading_reference(near, 0.4) == pytest.approx(near["yaw"])
-    t5 = get_task("t5")
+    t5 = get_task("t5", heading_rate=MAX_YAW_RATE)
     c5 = t5.command(np.array(t5.robot_pose[:2]) + 0.05, t5.robot_pose[2] + 0.3, np.array(t5.box_start), HALF_DEPTH)
     assert t5.heading_reference(c5, 0.1) == c5["yaw"]
 

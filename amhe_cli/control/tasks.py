@@ -164,9 +164,11 @@ class Task:
         fall_height: base height over the robot's floor under which the robot counts as fallen [m].
         fall_tilt: trunk tilt beyond which it counts as fallen [rad] (35°: no recorded run tilted further
             and came back; the Go1 safety layer damps at 40°).
+        heading_rate: the rate [rad/s] at which the planner's heading reference turns toward the
+            commanded heading (:meth:`heading_reference`); 0: the commanded heading itself, fixed.
 
     Raises:
-        AmheError: ``slow_floor`` outside [0, 1].
+        AmheError: ``slow_floor`` outside [0, 1], ``heading_rate`` negative.
     """
 
     name: str
@@ -190,10 +192,13 @@ class Task:
     fall_tilt: float = 0.6
     #: base height under which a rollout is penalised as falling [m]
     unsafe_height: float = 0.19
+    heading_rate: float = 0.0
 
     def __post_init__(self):
         if not 0.0 <= self.slow_floor <= 1.0:
             raise AmheError(f"task slow_floor {self.slow_floor}: expected a fraction of the speed in [0, 1]")
+        if isinstance(self.heading_rate, bool) or not isinstance(self.heading_rate, (int, float)) or self.heading_rate < 0:
+            raise AmheError(f"task heading_rate {self.heading_rate}: expected a yaw rate >= 0 [rad/s] (0: a fixed heading)")
 
     @property
     def gait_spec(self) -> Gait:
@@ -472,20 +477,23 @@ class Task:
         return start + delta / dist * np.minimum(cmd["speed"] * tau, dist)
 
     def heading_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray | float:
-        """(...) the heading [rad] the trunk should have ``tau`` [s] into the horizon: from its heading at the
-        cycle start (``cmd['base_yaw']``) toward ``cmd['yaw']`` at :data:`MAX_YAW_RATE`, never past it.
+        """(...) the heading [rad] the trunk should have ``tau`` [s] into the horizon: with a ``heading_rate``,
+        from its heading at the cycle start (``cmd['base_yaw']``) toward ``cmd['yaw']`` at that rate, never
+        past it; without one (0), ``cmd['yaw']`` itself.
 
-        The heading's counterpart of :meth:`waypoint_reference`. A fixed heading paid the planner for every
-        degree it gained on a far one, so turning round (the approach, T2's curve) it twisted the trunk at
-        1.1–1.35 rad/s, three times the most the gait is asked to turn, in 4 of the 19 recorded falls with a
-        timeline (docs/fall_prevention.md). The one-leg push and a command without ``base`` (the executed
-        cost ``J``) keep the fixed heading.
+        The heading's counterpart of :meth:`waypoint_reference`. A fixed heading pays the planner for every
+        degree it gains on a far one: turning round (the approach, T2's curve) it twisted the trunk at
+        1.1–1.35 rad/s, three times :data:`MAX_YAW_RATE`, in 4 of the 19 recorded falls with a timeline.
+        Measured with ``heading_rate`` = :data:`MAX_YAW_RATE` (docs/fall_prevention.md, "The planner's
+        heading as a moving reference"): fewer falls with plans 35 ms late, but T2 slower, and at the
+        paper's setting 2 falls in 7 T2 runs where the fixed heading had none, so it is off by default. The one-leg push and a command without ``base`` (the executed cost ``J``) keep
+        the fixed heading.
         """
         start = cmd.get("base_yaw")
-        if self.push_side or cmd.get("base") is None or start is None:
+        if self.heading_rate <= 0 or self.push_side or cmd.get("base") is None or start is None:
             return cmd["yaw"]
         err = _yaw_error(cmd["yaw"], start)
-        return start + np.sign(err) * np.minimum(MAX_YAW_RATE * np.asarray(tau, dtype=float), abs(err))
+        return start + np.sign(err) * np.minimum(self.heading_rate * np.asarray(tau, dtype=float), abs(err))
 
     def _box_term(self, box_pos: np.ndarray, cmd: dict, tau: np.ndarray | float) -> np.ndarray:
         """(...) ``w_box`` × squared distance of the box to its reference, per (10 cm)²."""
