@@ -433,9 +433,9 @@ def test_the_waypoint_reference_moves_at_the_commanded_speed_so_a_lunge_costs_mo
 
 
 def test_a_heading_rate_turns_the_heading_reference_so_a_twist_costs_more():
-    """With ``heading_rate``, turning round toward a far heading, the trunk's heading reference turns from
-    where it faced at that rate: a trunk twisting faster pays, where a fixed heading (the default) paid
-    it for every degree gained."""
+    """With ``heading_rate``, turning round toward a far heading in the approach, the trunk's heading
+    reference turns from where it faced at that rate: a trunk twisting faster pays, where a fixed heading
+    (the default) paid it for every degree gained. The push keeps its fixed heading."""
     from amhe_cli.control.tasks import MAX_YAW_RATE
     task = get_task("t1", heading_rate=MAX_YAW_RATE)
     box = np.array([1.0, 0.0])
@@ -460,10 +460,10 @@ def test_a_heading_rate_turns_the_heading_reference_so_a_twist_costs_more():
     for bad in (-0.1, "fast"):
         with pytest.raises(AmheError, match="heading_rate"):
             get_task("t1", heading_rate=bad)
-    # a small correction is reached within the horizon; the one-leg push keeps its heading
-    near = task.command(np.array([0.4, 0.05]), 0.05, box, HALF_DEPTH)
-    assert near["phase"] == "push"
-    assert task.heading_reference(near, 0.4) == pytest.approx(near["yaw"])
+    # the push steers back to its line at once; so does the one-leg push
+    near = task.command(np.array([0.4, 0.05]), 0.3, box, HALF_DEPTH)
+    assert near["phase"] == "push" and abs(near["yaw"] - 0.3) > 0.2
+    assert task.heading_reference(near, 0.1) == near["yaw"]
     t5 = get_task("t5", heading_rate=MAX_YAW_RATE)
     c5 = t5.command(np.array(t5.robot_pose[:2]) + 0.05, t5.robot_pose[2] + 0.3, np.array(t5.box_start), HALF_DEPTH)
     assert t5.heading_reference(c5, 0.1) == c5["yaw"]

@@ -165,7 +165,8 @@ class Task:
         fall_tilt: trunk tilt beyond which it counts as fallen [rad] (35°: no recorded run tilted further
             and came back; the Go1 safety layer damps at 40°).
         heading_rate: the rate [rad/s] at which the planner's heading reference turns toward the
-            commanded heading (:meth:`heading_reference`); 0: the commanded heading itself, fixed.
+            commanded heading in the approach phase (:meth:`heading_reference`); 0: the commanded
+            heading itself, fixed.
 
     Raises:
         AmheError: ``slow_floor`` outside [0, 1], ``heading_rate`` negative.
@@ -478,19 +479,21 @@ class Task:
 
     def heading_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray | float:
         """(...) the heading [rad] the trunk should have ``tau`` [s] into the horizon: with a ``heading_rate``,
-        from its heading at the cycle start (``cmd['base_yaw']``) toward ``cmd['yaw']`` at that rate, never
-        past it; without one (0), ``cmd['yaw']`` itself.
+        in the approach phase, from its heading at the cycle start (``cmd['base_yaw']``) toward ``cmd['yaw']``
+        at that rate, never past it; otherwise ``cmd['yaw']`` itself.
 
         The heading's counterpart of :meth:`waypoint_reference`. A fixed heading pays the planner for every
         degree it gains on a far one: turning round (the approach, T2's curve) it twisted the trunk at
         1.1–1.35 rad/s, three times :data:`MAX_YAW_RATE`, in 4 of the 19 recorded falls with a timeline.
-        Measured with ``heading_rate`` = :data:`MAX_YAW_RATE` (docs/fall_prevention.md, "The planner's
-        heading as a moving reference"): fewer falls with plans 35 ms late, but T2 slower, and at the
-        paper's setting 2 falls in 7 T2 runs where the fixed heading had none, so it is off by default. The one-leg push and a command without ``base`` (the executed cost ``J``) keep
-        the fixed heading.
+        Measured (docs/fall_prevention.md, "The planner's heading as a moving reference"): at
+        :data:`MAX_YAW_RATE` in every phase, fewer falls with plans 35 ms late but T2 slower, and at the
+        paper's setting 2 falls in 7 T2 runs where the fixed heading had none; in the approach alone,
+        T2's falls 7 -> 1 in 30 runs with plans 35 ms late. Off by default until a full grid settles it.
+        The push (its steering back to the line), the one-leg push and a command without ``base`` (the
+        executed cost ``J``) keep the fixed heading.
         """
         start = cmd.get("base_yaw")
-        if self.heading_rate <= 0 or self.push_side or cmd.get("base") is None or start is None:
+        if self.heading_rate <= 0 or cmd.get("phase") != "approach" or cmd.get("base") is None or start is None:
             return cmd["yaw"]
         err = _yaw_error(cmd["yaw"], start)
         return start + np.sign(err) * np.minimum(self.heading_rate * np.asarray(tau, dtype=float), abs(err))
