@@ -488,7 +488,8 @@ class Task:
         Measured (docs/fall_prevention.md, "The planner's heading as a moving reference"): at
         :data:`MAX_YAW_RATE` in every phase, fewer falls with plans 35 ms late but T2 slower, and at the
         paper's setting 2 falls in 7 T2 runs where the fixed heading had none; in the approach alone,
-        T2's falls 7 -> 1 in 30 runs with plans 35 ms late. Off by default until a full grid settles it.
+        T2's falls 7 -> 1 in 30 runs with plans 35 ms late, but at the paper's setting 1 fall in 19 T2 runs
+        where the fixed heading had none, and slower. Off by default.
         The push (its steering back to the line), the one-leg push and a command without ``base`` (the
         executed cost ``J``) keep the fixed heading.
         """
