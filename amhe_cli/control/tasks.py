@@ -493,9 +493,9 @@ class Task:
         The push (its steering back to the line), the one-leg push and a command without ``base`` (the
         executed cost ``J``) keep the fixed heading.
         """
-        start = cmd.get("base_yaw")
-        if self.heading_rate <= 0 or cmd.get("phase") != "approach" or cmd.get("base") is None or start is None:
+        if self.heading_rate <= 0 or cmd.get("phase") != "approach" or cmd.get("base") is None:
             return cmd["yaw"]
+        start = cmd["base_yaw"]
         err = _yaw_error(cmd["yaw"], start)
         return start + np.sign(err) * np.minimum(self.heading_rate * np.asarray(tau, dtype=float), abs(err))
 
