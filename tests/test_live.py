@@ -269,6 +269,9 @@ def test_run_on_the_emulator_streams_plan_rate_safety_and_trips_and_records_the_
     assert 0.15 < lines[0].points[0].z < 0.4  # the trunk's height
     rates = [m.data[0] for m in by["/amhe/planner"] if np.isfinite(m.data[0])]
     assert rates and 1 < np.median(rates) < 200
+    # the planner's forecast the fall reflex reads: a standing, walking trunk stays well under 20°
+    planner = [dict(zip(m.layout.dim[0].label.split(","), m.data)) for m in by["/amhe/planner"]]
+    assert all(0 <= p["forecast_tilt_deg"] < 20 for p in planner[1:]), planner
     # safety: servoing first, then the motion-capture watchdog holds the stand, said in the log with its reason
     states = [dict(zip(m.layout.dim[0].label.split(","), m.data)) for m in by["/amhe/safety"]]
     assert states[0]["ok"] == 1 and any(s["stand"] == 1 for s in states), (states[-1], run_err)

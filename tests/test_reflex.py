@@ -68,6 +68,44 @@ def test_a_recovery_ends_only_after_the_trunk_settles_inside_the_tighter_envelop
     assert r.active and r.recoveries == 2
 
 
+def test_a_plan_whose_every_sample_tilts_the_trunk_starts_a_recovery_before_the_trunk_tilts():
+    r = FallReflex()
+    assert r.update(0.0, UP, LEVEL, STILL, predicted_tilt=None) is None  # no plan yet
+    assert r.update(0.01, UP, LEVEL, STILL, predicted_tilt=0.34) is None and not r.active
+    text = r.update(0.02, UP, LEVEL, STILL, predicted_tilt=0.40)
+    assert r.active and r.recoveries == 1
+    assert "every sampled plan tilts the trunk past 20° (23°)" in text and "recovering the stand" in text
+    off = FallReflex(ReflexSettings(enter_predicted_tilt=0.0))
+    assert off.update(0.0, UP, LEVEL, STILL, predicted_tilt=1.0) is None and not off.active
+    for bad in (-0.1, 0.1):  # negative, or inside the exit envelope (it would never let a recovery end)
+        with pytest.raises(AmheError, match="enter_predicted_tilt"):
+            FallReflex(ReflexSettings(enter_predicted_tilt=bad))
+
+
+def test_the_closed_loop_trips_on_the_planners_predicted_tilt():
+    """A trunk leaning 0.2 rad (11°, inside the measured envelope) at the start: every sample of the first
+    plan keeps it past an 0.18 rad predicted bound, so the next cycle recovers; with the bound off it
+    walks on."""
+    task = get_task("t1", duration=0.3)
+    runs = []
+    for bound in (0.18, 0.0):
+        settings = RunSettings(mode="true", planner=PlannerSettings(samples=8, horizon=20), threads=1,
+                               reflex=ReflexSettings(enter_predicted_tilt=bound))
+        plant = make_plant(task, settings.kp, settings.kd, settings.planner.dt, cycle=settings.cycle)
+        qpos = plant.data.qpos.copy()
+        qpos[plant.scene.base_qpos[3:]] = tilted(0.2)
+        qpos[plant.scene.base_qpos[2]] += 0.02
+        plant.reset(qpos, np.zeros(plant.model.nv))
+        runs.append(run_task(task, None, settings, plant=plant))
+    tripped, walked = runs
+    assert tripped.recoveries >= 1 and walked.recoveries == 0
+    first = next(w for w in tripped.warnings if "fall prevention" in w)
+    assert float(first.split("t=")[1].split(" s")[0]) < 0.05  # the cycle after the first plan
+    assert "every sampled plan tilts the trunk past 10°" in first
+    assert "trunk tilt" not in first  # the measured trunk never left the envelope
+    assert np.degrees(trunk_tilt(tripped.traj.base_quat).max()) < 17
+
+
 def test_a_disabled_reflex_never_trips():
     r = FallReflex(ReflexSettings(enabled=False))
     assert r.update(0.0, np.array([0.0, 0.0, 0.05]), tilted(1.0), np.full(3, 9.0)) is None

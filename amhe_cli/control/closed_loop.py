@@ -525,7 +525,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
             cmd, yaw = measured_command(task, sc, q, t)
-            text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]])
+            text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]],
+                                 None if prev_rows is None else planner.predicted_tilt)
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")
             if reflex.active:
@@ -562,7 +563,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                          + (", or the MHE's own core back (mhe_cores: 0.5)" if estimator and mhe_duty >= 1 else ""))
             if view:
                 trunk_path, box_path_pred = planner.mean_path or (None, None)
-                view.plan(t, trunk_path, box_path_pred, plan.compute_time, lead)
+                view.plan(t, trunk_path, box_path_pred, plan.compute_time, lead, plan.predicted_tilt)
             # executed-trajectory metrics at the cycle start
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])

@@ -28,6 +28,7 @@ import numpy as np
 
 from amhe_cli.errors import AmheError, check_names
 from amhe_cli.control.gait import Gait
+from amhe_cli.control.reflex import trunk_tilt
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step, mppi_weights
@@ -161,6 +162,10 @@ class Plan:
         refined: True if this cycle ran the ``L_MPOPI`` refinement (mode switch).
         rollouts: rollouts simulated this cycle (× horizon steps each).
         compute_time: wall time [s].
+        predicted_tilt: the planner model's forecast [rad]: over this cycle's last batch of samples,
+            the least of each one's largest trunk tilt over the horizon, so no sampled plan keeps
+            the trunk more level than this (the fall reflex's trigger
+            :attr:`~amhe_cli.control.reflex.ReflexSettings.enter_predicted_tilt`).
     """
 
     controls: np.ndarray
@@ -168,6 +173,7 @@ class Plan:
     refined: bool
     rollouts: int
     compute_time: float
+    predicted_tilt: float = 0.0
 
 
 class Planner:
@@ -209,6 +215,8 @@ class Planner:
         self._mode: tuple | None = None
         #: (trunk (H, 3), box (H, 3)) [m]: the mean's predicted paths from the last cycle's state (live view)
         self.mean_path: tuple[np.ndarray, np.ndarray] | None = None
+        #: [rad] the last scored samples' least largest trunk tilt over the horizon (:attr:`Plan.predicted_tilt`)
+        self.predicted_tilt = 0.0
         m = scene.model
         self._qpos = slice(1, 1 + m.nq)
         self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
@@ -266,6 +274,7 @@ class Planner:
         box = qpos[..., sc.box_qpos[:3]]
         # sample 0 is the current mean: its predicted trunk and box paths, (H, 3) [m], for the live view
         self.mean_path = (qpos[0][:, sc.base_qpos[:3]], box[0])
+        self.predicted_tilt = float(np.min(trunk_tilt(qpos[..., sc.base_qpos[3:]]).max(axis=1)))
         tau = (np.arange(self.settings.horizon) + 1) * self.settings.dt
         J = self.task.stage_cost(qpos[..., sc.base_qpos[:3]], qpos[..., sc.base_qpos[3:]],
                                  qvel[..., sc.base_qvel[:3]], qvel[..., sc.base_qvel[3:]], box, u, ref[None], cmd,
@@ -321,4 +330,4 @@ class Planner:
         w = mppi_weights(J, s.temperature)
         self.mean = np.einsum("n,nkj->kj", w, knots)
         controls = self._controls(self.mean[None], ref)[0]
-        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0)
+        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0, self.predicted_tilt)

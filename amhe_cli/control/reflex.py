@@ -1,7 +1,8 @@
 """Fall prevention: stop pushing and recover the stand before the safety layer has to damp.
 
-A sampling planner with a 0.4 s horizon does not see a fall coming until it is
-under way. Read from recorded falls (``benchmarks/fall_forensics.py``, T2 in the
+A sampling planner with a 0.4 s horizon does not avoid a fall it sees coming
+when none of its samples, drawn narrowly around the gait, leads elsewhere.
+Read from recorded falls (``benchmarks/fall_forensics.py``, T2 in the
 lock-step sim): the trunk pitched from 7° to 30° in 0.4 s while the robot ran at
 0.5–0.8 m/s, three times its command, and its head struck the floor; the run's
 fall test (base below 0.15 m) fired 2.5 s later. The safety layer of a real Go1
@@ -11,10 +12,13 @@ down, not one that stays up.
 :class:`FallReflex` watches the measured trunk every cycle. When it leaves a
 safe envelope (tilt beyond :attr:`ReflexSettings.enter_tilt`, height over the
 floor below :attr:`ReflexSettings.enter_height`, or a roll/pitch rate beyond
-:attr:`ReflexSettings.enter_rate`), the closed loop replaces the task's command
-by :func:`recovery_command` — no walking, no pushing, the trunk level at the
-stand's height where it stands — and the planner tracks the ``stand`` gait with
-all four feet planted. Once the trunk has been back inside the tighter
+:attr:`ReflexSettings.enter_rate`), or when the planner forecasts that it will
+(every plan it sampled last cycle tilts the trunk beyond
+:attr:`ReflexSettings.enter_predicted_tilt` within its horizon: its model
+foresees the fall where the task's narrow sampling finds no way out), the
+closed loop replaces the task's command by :func:`recovery_command` — no
+walking, no pushing, the trunk level at the stand's height where it stands —
+and the planner tracks the ``stand`` gait with all four feet planted. Once the trunk has been back inside the tighter
 exit envelope for :attr:`ReflexSettings.settle` seconds, the task resumes (its
 approach phase first, if the robot lost the box meanwhile). A safety trip stays
 the last line, not the controller.
@@ -41,6 +45,12 @@ class ReflexSettings:
         enter_height: trunk height over the robot's floor [m] under which a recovery starts
             (the trot stands at 0.265; the task's fall test is 0.15).
         enter_rate: roll or pitch rate [rad/s] beyond which a recovery starts.
+        enter_predicted_tilt: the planner's predicted tilt [rad] beyond which a recovery starts
+            (0: off): when the last cycle's every sampled plan tilts the trunk past it within
+            the horizon (:attr:`~amhe_cli.control.planner.Plan.predicted_tilt`), the fall is
+            coming whatever the task's narrow sampling tries. 0.35 rad (20°): in a recorded
+            nose-dive (T4 Baseline seed 1, lock-step) it fired 0.42 s before the measured
+            tilt reached 17°, and never earlier in that run's 17 s (docs/fall_prevention.md).
         exit_tilt, exit_height, exit_rate: the envelope the trunk must be back inside ...
         settle: ... for this long [s] before the task resumes.
     """
@@ -49,6 +59,7 @@ class ReflexSettings:
     enter_tilt: float = 0.3
     enter_height: float = 0.19
     enter_rate: float = 3.0
+    enter_predicted_tilt: float = 0.35
     exit_tilt: float = 0.12
     exit_height: float = 0.23
     exit_rate: float = 0.8
@@ -57,9 +68,11 @@ class ReflexSettings:
     def check(self) -> None:
         """Raise :class:`AmheError` for an envelope that cannot work (exit looser than enter)."""
         if not (0 < self.exit_tilt < self.enter_tilt and 0 < self.enter_height < self.exit_height
-                and 0 < self.exit_rate < self.enter_rate and self.settle >= 0):
+                and 0 < self.exit_rate < self.enter_rate and self.settle >= 0
+                and (self.enter_predicted_tilt == 0 or self.enter_predicted_tilt > self.exit_tilt)):
             raise AmheError(f"reflex settings {asdict(self)}: expected 0 < exit_tilt < enter_tilt, "
-                            "0 < enter_height < exit_height, 0 < exit_rate < enter_rate, settle >= 0")
+                            "0 < enter_height < exit_height, 0 < exit_rate < enter_rate, settle >= 0, "
+                            "enter_predicted_tilt 0 (off) or above exit_tilt")
 
     @classmethod
     def from_dict(cls, d: dict) -> "ReflexSettings":
@@ -105,13 +118,16 @@ class FallReflex:
         self.recoveries = 0
         self._inside_since: float | None = None
 
-    def update(self, t: float, base_pos: np.ndarray, base_quat: np.ndarray, base_angvel: np.ndarray) -> str | None:
+    def update(self, t: float, base_pos: np.ndarray, base_quat: np.ndarray, base_angvel: np.ndarray,
+               predicted_tilt: float | None = None) -> str | None:
         """Feed one measurement; returns a message when the reflex starts or ends a recovery, else None.
 
         Args:
             t: time [s].
             base_pos: (3,) trunk position [m]; base_quat: (4,) (w, x, y, z);
             base_angvel: (3,) body-frame angular velocity [rad/s].
+            predicted_tilt: the last plan's :attr:`~amhe_cli.control.planner.Plan.predicted_tilt` [rad],
+                or None (no plan yet).
         """
         s = self.settings
         if not s.enabled:
@@ -127,6 +143,9 @@ class FallReflex:
                 why.append(f"trunk height {height:.3f} m < {s.enter_height:.2f} m")
             if rate > s.enter_rate:
                 why.append(f"roll/pitch rate {rate:.1f} rad/s > {s.enter_rate:.1f}")
+            if s.enter_predicted_tilt > 0 and predicted_tilt is not None and predicted_tilt > s.enter_predicted_tilt:
+                why.append(f"every sampled plan tilts the trunk past {np.degrees(s.enter_predicted_tilt):.0f}° "
+                           f"({np.degrees(predicted_tilt):.0f}°)")
             if why:
                 self.active, self._inside_since = True, None
                 self.recoveries += 1

@@ -17,7 +17,9 @@ topic                  type                               content
                                                           the box, the goal, floor regions with their μ
 ``/amhe/tf``           foxglove_msgs/msg/FrameTransforms  ``world`` -> each body frame
 ``/amhe/plan``         foxglove_msgs/msg/SceneUpdate      planner's mean plan: predicted trunk and box paths
-``/amhe/planner``      std_msgs/msg/Float64MultiArray     ``rate_hz, compute_ms, lead_ms`` (labelled)
+``/amhe/planner``      std_msgs/msg/Float64MultiArray     ``rate_hz, compute_ms, lead_ms, forecast_tilt_deg``
+                                                          (labelled; the last: the planner's best sample's
+                                                          largest trunk tilt over its horizon)
 ``/amhe/belief``       std_msgs/msg/Float64MultiArray     per parameter: value, σ, value ∓ σ, window, truth
 ``/amhe/safety``       std_msgs/msg/Float64MultiArray     Go1 safety state (``ok, hold, stand, damp, clamped``)
 ``/amhe/log``          foxglove_msgs/msg/Log              every warning, trip and watchdog, with its reason
@@ -339,9 +341,9 @@ class ViewFrames:
         if ev.kind == "scene":
             return [("/amhe/scene", ns, self.scene(ev.t))]
         if ev.kind == "plan":
-            trunk, box, compute, lead, rate = ev.data
-            out = [("/amhe/planner", ns, self.array(["rate_hz", "compute_ms", "lead_ms"],
-                                                    [rate, 1e3 * compute, 1e3 * lead]))]
+            trunk, box, compute, lead, rate, tilt = ev.data
+            out = [("/amhe/planner", ns, self.array(["rate_hz", "compute_ms", "lead_ms", "forecast_tilt_deg"],
+                                                    [rate, 1e3 * compute, 1e3 * lead, np.degrees(tilt)]))]
             if trunk is not None:
                 out.append(("/amhe/plan", ns, self.plan(ev.t, trunk, box)))
             return out
@@ -434,10 +436,12 @@ class View:
             self._emit(Event("state", t, (np.array(qpos, dtype=float),), due))
 
     def plan(self, t: float, trunk: np.ndarray | None, box: np.ndarray | None, compute: float,
-             lead: float = 0.0) -> None:
+             lead: float = 0.0, forecast_tilt: float = 0.0) -> None:
         """A planner cycle at ``t`` [s]: its mean plan's predicted (H, 3) trunk and box paths [m] (None:
-        not known), its compute time and lead [s]; the replanning rate is measured here over every
-        call, the paths are handed on at most ``plan_rate`` times per second of event time."""
+        not known), its compute time and lead [s], and its samples' least largest trunk tilt over the
+        horizon [rad] (:attr:`~amhe_cli.control.planner.Plan.predicted_tilt`). The replanning rate is
+        measured here over every call; the paths are handed on at most ``plan_rate`` times per second
+        of event time."""
         if self.sinks:
             rate = self._rate.tick()
             if t - self._last_plan < self.plan_dt - 1e-9:
@@ -445,7 +449,8 @@ class View:
             else:
                 self._last_plan = t
             self._emit(Event("plan", t, (None if trunk is None else np.array(trunk, dtype=float),
-                                         None if box is None else np.array(box, dtype=float), compute, lead, rate)))
+                                         None if box is None else np.array(box, dtype=float), compute, lead, rate,
+                                         float(forecast_tilt))))
 
     def belief(self, t: float, labels: Sequence[str], values: Sequence[float]) -> None:
         """The belief at ``t`` [s]: ``labels`` and ``values`` as :func:`belief_message` gives them."""
