@@ -84,7 +84,7 @@ def test_a_plan_whose_every_sample_tilts_the_trunk_starts_a_recovery_before_the_
 
 def test_the_closed_loop_trips_on_the_planners_predicted_tilt():
     """A trunk leaning 0.2 rad (11°, inside the measured envelope) at the start: every sample of the first
-    plan keeps it past an 0.18 rad predicted bound, so the next cycle recovers; with the bound off it
+    plan keeps it past a 0.18 rad predicted bound, so the next cycle recovers; with the bound off it
     walks on."""
     task = get_task("t1", duration=0.3)
     runs = []

@@ -49,7 +49,7 @@ class ReflexSettings:
             (0: off): when the last cycle's every sampled plan tilts the trunk past it within
             the horizon (:attr:`~amhe_cli.control.planner.Plan.predicted_tilt`), the fall is
             coming whatever the task's narrow sampling tries. 0.35 rad (20°): in a recorded
-            nose-dive (T4 Baseline seed 1, lock-step) it fired 0.42 s before the measured
+            nose-dive (T4 Baseline seed 1, lock-step) it fired 0.40 s before the measured
             tilt reached 17°, and never earlier in that run's 17 s (docs/fall_prevention.md).
         exit_tilt, exit_height, exit_rate: the envelope the trunk must be back inside ...
         settle: ... for this long [s] before the task resumes.

@@ -18,8 +18,9 @@ topic                  type                               content
 ``/amhe/tf``           foxglove_msgs/msg/FrameTransforms  ``world`` -> each body frame
 ``/amhe/plan``         foxglove_msgs/msg/SceneUpdate      planner's mean plan: predicted trunk and box paths
 ``/amhe/planner``      std_msgs/msg/Float64MultiArray     ``rate_hz, compute_ms, lead_ms, forecast_tilt_deg``
-                                                          (labelled; the last: the planner's best sample's
-                                                          largest trunk tilt over its horizon)
+                                                          (labelled; the last: the least, over the planner's
+                                                          samples, of each one's largest trunk tilt over the
+                                                          horizon [°], the fall reflex's forecast)
 ``/amhe/belief``       std_msgs/msg/Float64MultiArray     per parameter: value, σ, value ∓ σ, window, truth
 ``/amhe/safety``       std_msgs/msg/Float64MultiArray     Go1 safety state (``ok, hold, stand, damp, clamped``)
 ``/amhe/log``          foxglove_msgs/msg/Log              every warning, trip and watchdog, with its reason
