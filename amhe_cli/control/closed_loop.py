@@ -516,6 +516,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         phase = None
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
+        forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
         m = plant.measure()
         while m.t < task.duration - 1e-9:
             t, q, v = m.t, m.qpos, m.qvel
@@ -525,8 +526,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
             cmd, yaw = measured_command(task, sc, q, t)
-            text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]],
-                                 None if prev_rows is None else planner.predicted_tilt)
+            text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]], forecast)
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")
             if reflex.active:
@@ -548,6 +548,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 idx = np.round((t + pdt * np.arange(n) - prev_start) / pdt).astype(int)
                 state = planner.predict(state, prev_rows[np.clip(idx, 0, len(prev_rows) - 1)])
             plan = planner.plan(state, t + lead, cmd, gait)
+            forecast = plan.predicted_tilt
             compute = plan.compute_time if s.latency is None else s.latency  # what the plant waits for
             if len(plan_times):  # the first plan warms caches up: not a latency to expect
                 compute_ema = min(compute if compute_ema is None else 0.7 * compute_ema + 0.3 * compute, MAX_LEAD)

@@ -215,8 +215,7 @@ class Planner:
         self._mode: tuple | None = None
         #: (trunk (H, 3), box (H, 3)) [m]: the mean's predicted paths from the last cycle's state (live view)
         self.mean_path: tuple[np.ndarray, np.ndarray] | None = None
-        #: [rad] the last scored samples' least largest trunk tilt over the horizon (:attr:`Plan.predicted_tilt`)
-        self.predicted_tilt = 0.0
+        self._predicted_tilt = 0.0  # [rad] the last scored batch's (:attr:`Plan.predicted_tilt`)
         m = scene.model
         self._qpos = slice(1, 1 + m.nq)
         self._qvel = slice(1 + m.nq, 1 + m.nq + m.nv)
@@ -274,7 +273,7 @@ class Planner:
         box = qpos[..., sc.box_qpos[:3]]
         # sample 0 is the current mean: its predicted trunk and box paths, (H, 3) [m], for the live view
         self.mean_path = (qpos[0][:, sc.base_qpos[:3]], box[0])
-        self.predicted_tilt = float(np.min(trunk_tilt(qpos[..., sc.base_qpos[3:]]).max(axis=1)))
+        self._predicted_tilt = float(np.min(trunk_tilt(qpos[..., sc.base_qpos[3:]]).max(axis=1)))
         tau = (np.arange(self.settings.horizon) + 1) * self.settings.dt
         J = self.task.stage_cost(qpos[..., sc.base_qpos[:3]], qpos[..., sc.base_qpos[3:]],
                                  qvel[..., sc.base_qvel[:3]], qvel[..., sc.base_qvel[3:]], box, u, ref[None], cmd,
@@ -330,4 +329,4 @@ class Planner:
         w = mppi_weights(J, s.temperature)
         self.mean = np.einsum("n,nkj->kj", w, knots)
         controls = self._controls(self.mean[None], ref)[0]
-        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0, self.predicted_tilt)
+        return Plan(controls, float(J[0]), refine, rollouts, time.perf_counter() - t0, self._predicted_tilt)
