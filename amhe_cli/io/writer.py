@@ -84,6 +84,26 @@ def _to_ns(t: np.ndarray) -> np.ndarray:
     return np.round(t * 1e9).astype(np.int64)
 
 
+def chunk_compression():
+    """The MCAP chunk compression this Python can write: zstd, else lz4, else none.
+
+    ``mcap`` writes zstd chunks by default but imports its codecs only if installed; an
+    environment missing ``zstandard`` (a hand-made install, a wheel set carried without
+    dependencies) would otherwise fail only when the run's recording is written, after the
+    run, and lose it. Every MCAP reader (amhe's, Foxglove, ``mcap`` CLI) reads all three.
+
+    Returns:
+        ``mcap.writer.CompressionType``.
+    """
+    import mcap.writer as mw
+
+    if getattr(mw, "zstandard", None) is not None:
+        return mw.CompressionType.ZSTD
+    if getattr(mw, "lz4", None) is not None:
+        return mw.CompressionType.LZ4
+    return mw.CompressionType.NONE
+
+
 class McapLog:
     """An MCAP file being written in the project schema; a context manager.
 
@@ -122,7 +142,12 @@ class McapLog:
             raise AmheError(f"cannot write '{self.path}': folder '{self.path.parent}' does not exist")
         self._part = self.path.with_name(self.path.name + ".part")
         self._file = self._part.open("wb")
-        self._writer = Writer(self._file)
+        try:
+            self._writer = Writer(self._file, compression=chunk_compression())
+        except BaseException:
+            self._file.close()
+            self._part.unlink(missing_ok=True)
+            raise
         self._schemas: dict[str, Any] = {}
         self._topic_types: dict[str, str] = {}
         self._closed = False
