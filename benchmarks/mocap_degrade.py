@@ -11,8 +11,9 @@ kept only at ``--rate`` Hz (the samples nearest ``k / rate`` s), white noise on
 position [m] per axis and orientation [°] per axis (a small rotation vector
 composed in the body frame), white noise [m/s] on the base twist, and a
 fraction ``--drop`` of the remaining pose messages left out at random. Joint
-states, commands, gains and efforts stay as they were. A ``<LOG stem>.truth.yaml``
-beside LOG is copied beside OUT, so ``identify_accuracy.py OUT.mcap`` finds it.
+states, commands, gains and efforts stay as they were. ``<LOG stem>.truth.yaml`` and
+``.truth.csv`` beside LOG (an ``amhe run`` recording has the CSV: a friction step's truth over
+time) are copied beside OUT, so ``identify_accuracy.py`` and ``mhe_accuracy.py`` find them.
 Prints what it kept.
 """
 
@@ -73,9 +74,10 @@ def main() -> None:
         path = write_mcap(a.out, out, overwrite=a.force)
     except AmheError as e:
         sys.exit(f"mocap_degrade: {e}")
-    truth = Path(a.log).with_name(Path(a.log).stem + ".truth.yaml")
-    if truth.is_file():
-        shutil.copyfile(truth, path.with_name(path.stem + ".truth.yaml"))
+    for suffix in (".truth.yaml", ".truth.csv"):
+        truth = Path(a.log).with_name(Path(a.log).stem + suffix)
+        if truth.is_file():
+            shutil.copyfile(truth, path.with_name(path.stem + suffix))
     print(f"{path}: {int(observed['box'].sum())} box and {int(observed['base'].sum())} base poses of {n} samples "
           f"({a.rate:g} Hz, {a.position_noise * 1e3:g} mm / {a.orientation_noise_deg:g}°, {100 * a.drop:g} % dropped)")
 
