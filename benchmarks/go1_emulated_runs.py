@@ -18,8 +18,8 @@ the MHE updates its core budget put off), then one row per
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
-  recoveries, other safety trips, e_g mean ± std [m], the planner's replanning rate
-  (median over runs, Hz);
+  recoveries, other safety trips, e_g mean ± std [m], t_exec mean ± std [s] (to the
+  goal, else the run's length), the planner's replanning rate (median over runs, Hz);
 * the online MHE's error after each change of the world (T3's mass switch, T4's
   friction step; the emulator prints when each fires and the client's recording
   holds its own start on the same monotonic clock): from 3 s after the change to
@@ -189,11 +189,12 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 
 def table(rows: list[dict], tasks, modes) -> None:
-    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, replanning rate, the medians of a run's
+    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, t_exec (the time to the goal, else the
+    run's length: where both modes reach the goal, the one that gets there sooner), replanning rate, the medians of a run's
     lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
     each change."""
     print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
-          f"{'e_g mean ± std [m]':>19} {'Hz':>5} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
+          f"{'e_g mean ± std [m]':>19} {'t_exec [s]':>12} {'Hz':>5} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
           "worst |mass err| / |μ err|, runs within 10 % / 0.05")
 
     def median(sel, key):
@@ -206,6 +207,7 @@ def table(rows: list[dict], tasks, modes) -> None:
             if not sel:
                 continue
             e_g = np.array([r.get("e_g", np.nan) for r in sel], dtype=float)
+            t_exec = np.array([r.get("t_exec", np.nan) for r in sel], dtype=float)
             hz = [r["control_hz"] for r in sel if "control_hz" in r]
             segs = []
             ok = [[g for g in r["mhe"] if "error" not in g] for r in sel]
@@ -219,7 +221,8 @@ def table(rows: list[dict], tasks, modes) -> None:
             print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "
                   f"{sum(r['fell'] for r in sel):5d} {sum(int(r.get('recoveries', 0)) for r in sel):5d} "
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
-                  f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f}   {np.median(hz) if hz else float('nan'):5.1f} "
+                  f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f} {np.nanmean(t_exec):5.1f} ± {np.nanstd(t_exec):4.1f} "
+                  f"{np.median(hz) if hz else float('nan'):5.1f} "
                   f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs))
 
 
