@@ -8,7 +8,9 @@ Closed-loop runs here are short (≤ 1.5 s of plant time) with a small planner
 from __future__ import annotations
 
 import json
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -627,6 +629,37 @@ def test_t5_one_leg_push_moves_the_box_sideways_on_three_legs():
     assert box[0, 1] - box[-1, 1] >= 0.15  # sideways, to the right
     assert task.goal_error(box[-1, :2]) <= task.goal_error(box[0, :2]) - 0.15
     assert not r.fell and np.linalg.norm(base[-1, :2] - base[0, :2]) < 0.1
+
+
+def test_a_recording_that_cannot_be_written_where_asked_is_kept_elsewhere_and_said(t1_true_runs, tmp_path,
+                                                                                  monkeypatch):
+    """A disk that fills during a robot run must not cost the run's recording: save_run writes it to a
+    fresh temporary folder instead and its one-line error names where; if that fails too, it says so."""
+    import amhe_cli.control.closed_loop as cl
+    from amhe_cli.io.reader import read_log
+
+    task, r, _ = t1_true_runs
+    real, wanted = cl.write_mcap, tmp_path / "run.mcap"
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # the spare copy stays inside the test's folder
+
+    def full_disk(path, *a, **kw):
+        if path == wanted:
+            raise OSError(28, "No space left on device")
+        return real(path, *a, **kw)
+
+    monkeypatch.setattr(cl, "write_mcap", full_disk)
+    with pytest.raises(AmheError, match=r"No space left on device\): the run's recording is in (\S+) instead") as e:
+        cl.save_run(r, wanted, task, small_settings("true"))
+    spare = Path(str(e.value).rsplit(" is in ", 1)[1].split(" instead")[0])
+    assert spare.name == "run.mcap" and spare.parent.parent == tmp_path / "tmp"
+    np.testing.assert_array_equal(read_log(spare).box_pos[:, 0], r.traj.box_pos[:, 0])
+    assert spare.with_name("run.truth.csv").is_file()
+    assert [p.name for p in tmp_path.iterdir()] == ["tmp"]  # no half-written file where the user asked
+
+    monkeypatch.setattr(cl, "write_mcap", lambda *a, **kw: (_ for _ in ()).throw(OSError(28, "No space left on device")))
+    with pytest.raises(AmheError, match="nor a copy in .*: the run's recording is lost"):
+        cl.save_run(r, wanted, task, small_settings("true"))
 
 
 def test_t1_closed_loop_makes_progress(t1_true_runs):

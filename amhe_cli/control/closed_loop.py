@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import csv
 import json
+import tempfile
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -670,7 +671,9 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     Returns:
         (mcap path, csv path or None).
     Raises:
-        AmheError: a file exists and ``overwrite`` is False.
+        AmheError: a file exists and ``overwrite`` is False; or writing failed (a full disk, a folder
+            gone during the run, …): then the recording is written to a fresh folder under the
+            system's temporary directory and the message names it (or says that failed too).
     """
     path = Path(path)
     truth = result.traj.meta.get("truth")
@@ -694,14 +697,30 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
         meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
     extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]
     extra += [(topic, t, vals, labs) for topic, (t, vals, labs) in result.extras.items()]
-    write_mcap(path, result.traj, metadata=meta, overwrite=overwrite, extra=extra, more=more)
-    if csv_path is None:
-        return path, None
-    ts = result.traj.meta["truth_series"]
-    with csv_path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["t", "box_mass_kg", "mu_floor_at_box_center"])
-        step = max(1, int(round(0.01 / result.traj.dt)))
-        for i in range(0, len(ts["t"]), step):
-            w.writerow([f"{ts['t'][i]:.4f}", f"{ts['box_mass'][i]:.6g}", f"{ts['box_friction'][i]:.6g}"])
+
+    def write(path: Path, csv_path: Path | None, overwrite: bool) -> None:
+        write_mcap(path, result.traj, metadata=meta, overwrite=overwrite, extra=extra, more=more)
+        if csv_path is None:
+            return
+        ts = result.traj.meta["truth_series"]
+        with csv_path.open("w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(["t", "box_mass_kg", "mu_floor_at_box_center"])
+            step = max(1, int(round(0.01 / result.traj.dt)))
+            for i in range(0, len(ts["t"]), step):
+                w.writerow([f"{ts['t'][i]:.4f}", f"{ts['box_mass'][i]:.6g}", f"{ts['box_friction'][i]:.6g}"])
+
+    try:
+        write(path, csv_path, overwrite)
+    except AmheError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a disk full or a folder gone must not take the run with it
+        reason = getattr(exc, "strerror", None) or f"{type(exc).__name__}: {exc}"
+        spare = Path(tempfile.mkdtemp(prefix="amhe-run-")) / path.name
+        try:
+            write(spare, spare.with_name(csv_path.name) if csv_path else None, False)
+        except Exception as exc2:  # noqa: BLE001
+            raise AmheError(f"could not write {path} ({reason}), nor a copy in {spare.parent} "
+                            f"({getattr(exc2, 'strerror', None) or exc2}): the run's recording is lost") from exc
+        raise AmheError(f"could not write {path} ({reason}): the run's recording is in {spare} instead") from exc
     return path, csv_path
