@@ -189,8 +189,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 
 def table(rows: list[dict], tasks, modes) -> None:
-    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, t_exec (the time to the goal, else the
-    run's length: where both modes reach the goal, the one that gets there sooner), replanning rate, the medians of a run's
+    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, t_exec (to the goal, else the run's
+    length), replanning rate, the medians of a run's
     lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
     each change."""
     print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
