@@ -821,6 +821,7 @@ def test_write_mcap_round_trip(tmp_path):
     assert labels == ["mass", "mu"] and values.shape == (6, 2)
     np.testing.assert_allclose(t, traj.t[::100], atol=1e-12)
 
+
 @pytest.mark.parametrize("missing", [("zstandard",), ("zstandard", "lz4")])
 def test_a_python_without_the_zstd_codec_still_writes_a_readable_recording(tmp_path, monkeypatch, missing):
     """A run's recording must not be lost to a missing codec: mcap imports zstandard and lz4 only
