@@ -30,7 +30,7 @@ the MHE updates its core budget put off), then one row per
   the fixed belief's error against the changed world.
 
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
-                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg]
+                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--threads 3]
     python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
 
 A grid cut off keeps every finished run in ``--jsonl``; ``--table`` prints the table of
@@ -143,7 +143,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                                             f"127.0.0.1:{port}", "--local-port", "0", "--mocap", f"udp:127.0.0.1:{pose}",
                                             "--mode", mode, "--arm", "--json", "--duration", str(args.duration),
                                             "--seed", str(seed), "--out", recording, "--force",
-                                            *(["--config", args.config] if args.config else [])],
+                                            *(["--config", args.config] if args.config else []),
+                                            *(["--threads", str(args.threads)] if args.threads else [])],
                               capture_output=True, text=True, timeout=args.duration + 180)
         wall = time.monotonic() - t0
     finally:
@@ -165,6 +166,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         res = {"failure": proc.stderr.strip().splitlines()[-1] if proc and proc.stderr.strip() else "no output"}
     text = f"{res.get('failure', '')} {res.get('reason', '')}"
     res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
+               **({"threads": args.threads} if args.threads else {}),
                emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
@@ -242,6 +244,10 @@ def main() -> None:
     ap.add_argument("--out-dir", default=".")
     ap.add_argument("--jsonl", default=None, help="append each run's JSON line here as it finishes")
     ap.add_argument("--config", default=None, help="run config YAML passed to amhe run")
+    ap.add_argument("--threads", type=int, default=None,
+                    help="the client's planner threads, passed to amhe run (default: its own split of the "
+                         "client's CPUs, which gives the adaptive MHE one of 4): e.g. a baseline on 3 of 4 "
+                         "plans at adaptive's rate")
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
     ap.add_argument("--table", nargs="+", default=None, metavar="JSONL",
                     help="print the table of the runs in these --jsonl files and exit")
