@@ -17,6 +17,11 @@ the robot fell again and its largest tilt (``rescue`` in the run's line). Compar
 on the same falls separates a search that cannot find the saving action from a state already
 beyond saving.
 
+``--rescue-log REC --tasks T --rescue 1.27,0.76 --seeds 4`` asks the same of a fall recorded elsewhere (an
+emulated Go1's or a real robot's ``amhe run`` recording, which ends at its fall): from its recorded states
+that many seconds before its end, ``--seeds`` planner seeds each, no run of its own. A recovery that stays
+up here fell to what the wall clock adds (late plans, a state estimated from noisy motion capture).
+
 Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``); ``--beliefs DIR``
 keeps the probed beliefs there, so a grid split over several calls (``--first-seed``) probes once.
 """
@@ -38,6 +43,7 @@ from amhe_cli.control.gait import GAITS
 from amhe_cli.control.reflex import recovery_command, trunk_tilt
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.io.quat import quat_to_yaw, rotation_from_wxyz, world_to_body
+from amhe_cli.io.reader import read_log
 from amhe_cli.model.scene import Scene, SceneConfig
 
 
@@ -62,14 +68,14 @@ def timeline(result, before: float) -> list[dict]:
             for j, i in enumerate(keep)]
 
 
-def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0) -> dict:
+def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0, seed: int = 0) -> dict:
     """Restart the stand recovery from the recorded state at ``t0`` [s]; did the robot stay up?
 
     The planner is the run config's (true parameters), commanded as the fall reflex does
     (:func:`~amhe_cli.control.reflex.recovery_command`, the ``stand`` gait) for ``duration``
     seconds of lock-step sim from a fresh distribution.
     """
-    task, s = run_settings(task_name, "true", config, threads=1)
+    task, s = run_settings(task_name, "true", config, seed=seed, threads=1)
     i = int(np.argmin(np.abs(traj.t - t0)))
     plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
     qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
@@ -87,7 +93,7 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0)
             m = plant.measure()
             tilt = max(tilt, float(trunk_tilt(m.qpos[sc.base_qpos[3:]])))
             fell = has_fallen(task, sc, m.qpos)
-    return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "fell": fell,
+    return {"before": round(float(traj.t[-1] - traj.t[i]), 2), "seed": seed, "fell": fell,
             "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
 
 
@@ -110,6 +116,19 @@ def probe_task(task_name: str, config: dict, threads: int) -> Belief:
     return probe_belief(task, seed=0, threads=threads)
 
 
+def rescue_log(a, config: dict, task_name: str) -> None:
+    """``--rescue-log``: restart the recovery from a recorded fall's states, one JSON line per restart."""
+    traj = read_log(a.rescue_log)
+    before = [float(x) for x in a.rescue.split(",") if x] or [0.5]
+    tries = []
+    for b in before:
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
+            row = rescue(task_name, config, traj, float(traj.t[-1]) - b, seed=seed)
+            tries.append(row)
+            print(json.dumps(row), flush=True)
+    print(f"rescues: {sum(not x['fell'] for x in tries)} of {len(tries)} restarts stayed up")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", default="t2")
@@ -126,9 +145,15 @@ def main() -> None:
                          "task, in parallel) and saved there for the next call")
     ap.add_argument("--rescue", default="",
                     help="seconds before each fall to restart the recovery from, e.g. 0.5,0.4,0.3")
+    ap.add_argument("--rescue-log", default=None, metavar="REC",
+                    help="restart the recovery from this recorded fall's states instead (--rescue: seconds before "
+                         "its end; --seeds: planner seeds; the task from --tasks)")
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")
+    if a.rescue_log:
+        rescue_log(a, config, tasks[0])
+        return
     beliefs = {}
     if set(modes) - {"true"}:
         saved = {t: Path(a.beliefs) / f"{t}.belief.yaml" for t in tasks} if a.beliefs else {}
