@@ -41,6 +41,7 @@ from amhe_cli.control.closed_loop import has_fallen, make_plant, make_planner, m
 from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
 from amhe_cli.control.gait import GAITS
 from amhe_cli.control.reflex import recovery_command, trunk_tilt
+from amhe_cli.errors import AmheError
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.io.quat import quat_to_yaw, rotation_from_wxyz, world_to_body
 from amhe_cli.io.reader import read_log
@@ -117,8 +118,15 @@ def probe_task(task_name: str, config: dict, threads: int) -> Belief:
 
 
 def rescue_log(a, config: dict, task_name: str) -> None:
-    """``--rescue-log``: restart the recovery from a recorded fall's states, one JSON line per restart."""
-    traj = read_log(a.rescue_log)
+    """``--rescue-log``: restart the recovery from a recorded fall's states, one JSON line per restart.
+
+    The restarted plant holds the task's starting truth (an event of the recorded run, such as T3's mass
+    switch, has not fired in it): a recovery that does not touch the box does not see the difference.
+    """
+    try:
+        traj = read_log(a.rescue_log)
+    except AmheError as exc:
+        sys.exit(f"fall_forensics: {exc}")
     before = [float(x) for x in a.rescue.split(",") if x] or [0.5]
     tries = []
     for b in before:
