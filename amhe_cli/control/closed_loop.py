@@ -715,12 +715,14 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     except AmheError:
         raise
     except Exception as exc:  # noqa: BLE001 - a disk full or a folder gone must not take the run with it
-        reason = getattr(exc, "strerror", None) or f"{type(exc).__name__}: {exc}"
+        def why(e: Exception) -> str:
+            return getattr(e, "strerror", None) or f"{type(e).__name__}: {e}"
+
         spare = Path(tempfile.mkdtemp(prefix="amhe-run-")) / path.name
         try:
             write(spare, spare.with_name(csv_path.name) if csv_path else None, False)
         except Exception as exc2:  # noqa: BLE001
-            raise AmheError(f"could not write {path} ({reason}), nor a copy in {spare.parent} "
-                            f"({getattr(exc2, 'strerror', None) or exc2}): the run's recording is lost") from exc
-        raise AmheError(f"could not write {path} ({reason}): the run's recording is in {spare} instead") from exc
+            raise AmheError(f"could not write {path} ({why(exc)}), nor a copy in {spare.parent} "
+                            f"({why(exc2)}): the run's recording is lost") from exc
+        raise AmheError(f"could not write {path} ({why(exc)}): the run's recording is in {spare} instead") from exc
     return path, csv_path
