@@ -374,6 +374,7 @@ class _Slot:
         self.graph = None
         self.hcap = self.ncap = 0
         self.clipkey = None
+        self.fieldkey = None
 
 
 class WarpRollout:
@@ -419,6 +420,9 @@ class WarpRollout:
         self.nconmax = int(nconmax or (self.bound[0] if self._fixed else 0))
         self.njmax = int(njmax or (self.bound[1] if self._fixed else 0))
         self.device = wp.get_device(device)
+        #: a CUDA stream of its own: two backends in one process (the run's planner and its MHE thread)
+        #: then run their steps side by side instead of queueing on the device's default stream
+        self.stream = wp.Stream(self.device) if self.device.is_cuda else None
         self._models: list[mujoco.MjModel] = []
         self._spaces_checked: set[int] = set()
         self._slots: dict[int, _Slot] = {}
@@ -441,6 +445,17 @@ class WarpRollout:
     def close(self) -> None:
         """Drop the device buffers and graphs (a later call allocates them again)."""
         self._slots.clear()
+
+    def _scope(self):
+        """Work in this backend's stream (on CUDA) or on its device."""
+        return self.wp.ScopedStream(self.stream) if self.stream is not None else self.wp.ScopedDevice(self.device)
+
+    def _sync(self) -> None:
+        """Wait for this backend's own work (its stream; the whole device off CUDA)."""
+        if self.stream is not None:
+            self.wp.synchronize_stream(self.stream)
+        else:
+            self.wp.synchronize_device(self.device)
 
     def models(self, n: int) -> list[mujoco.MjModel]:
         """``n`` host model copies to write candidates into (created once, reused)."""
@@ -470,7 +485,7 @@ class WarpRollout:
         s = _Slot(cap)
         batch = {f: cap for f in BATCHED_FIELDS if getattr(self.host, f).size}
         try:
-            with wp.ScopedDevice(self.device):
+            with self._scope():
                 s.m = mjw.put_model(self.host, batch_sizes=batch)
                 s.m.opt.warn_overflow = 0  # overflows are read from d.overflow and handled, not printed
                 s.d = mjw.put_data(self.host, mujoco.MjData(self.host), nworld=cap, nconmax=self.nconmax,
@@ -498,7 +513,7 @@ class WarpRollout:
             return
         wp, m = self.wp, self.host
         s.hcap, s.ncap = max(hmax, s.hcap), max(nclip, s.ncap)
-        with wp.ScopedDevice(self.device):
+        with self._scope():
             s.init_in = wp.zeros((s.ncap, 1 + m.nq + m.nv), dtype=float)
             s.ctrl_in = wp.zeros((s.ncap, s.hcap, m.nu), dtype=float)
             s.qpos_out = wp.zeros((s.cap, s.hcap, m.nq), dtype=float)
@@ -548,11 +563,11 @@ class WarpRollout:
                       "(~/.cache/warp, or $WARP_CACHE_PATH): minutes the first time, seconds after…",
                       file=sys.stderr, flush=True)
             t0 = time.perf_counter()
-            with wp.ScopedDevice(self.device):
+            with self._scope():
                 if first:  # load every module outside the capture
                     self._reset_worlds(s)
                     self._step(s)
-                    wp.synchronize()
+                    self._sync()
                 if self.device.is_cuda:
                     with wp.ScopedCapture() as cap:
                         self._step(s)
@@ -590,7 +605,7 @@ class WarpRollout:
     def _launch(self, s: _Slot, hmax: int) -> None:
         """Reset every world, then ``hmax`` steps (the captured step graph launched ``hmax`` times)."""
         graph = self._graph(s)
-        with self.wp.ScopedDevice(self.device):
+        with self._scope():
             self._reset_worlds(s)
             for _ in range(hmax):
                 if self.device.is_cuda:
@@ -608,14 +623,14 @@ class WarpRollout:
         rows = nworld * s.hcap
         wp.copy(s.qpos_host, s.qpos_out, count=rows * m.nq)
         wp.copy(s.qvel_host, s.qvel_out, count=rows * m.nv)
-        wp.synchronize_device(self.device)
+        self._sync()
         return (np.array(s.qpos_host.numpy()[:nworld, :hmax]), np.array(s.qvel_host.numpy()[:nworld, :hmax]))
 
     def _set_fields(self, s: _Slot, fields: dict[str, np.ndarray], ncand: int) -> None:
         """Per-candidate (B, ...) fields to every world (world w: candidate w // N_c; padding: candidate 0)."""
         wp = self.wp
         from amhe_cli.model import _warp_kernels as K
-        with wp.ScopedDevice(self.device):
+        with self._scope():
             for f, v in fields.items():
                 dst = s.flat[f]
                 src = wp.array(np.ascontiguousarray(v.reshape(ncand, -1), dtype=np.float32), dtype=float)
@@ -632,7 +647,8 @@ class WarpRollout:
         GPU, depth is not); rows past a clip's horizon are then replaced by its
         last state, as on the CPU. The clips' recorded starts and controls are
         uploaded once per clip set; a call uploads only the candidates'
-        per-world fields.
+        per-world fields, and those only where they differ from the slot's
+        last call's (a planner's belief, cycle after cycle, is written once).
 
         Raises:
             AmheError: with buffer sizes given, a contact or constraint buffer
@@ -642,6 +658,10 @@ class WarpRollout:
                 worlds that overflow the scene's bound come back as NaN (the
                 cost module's "diverged") with a warning.
         """
+        with self._scope():  # every copy and launch in this backend's stream
+            return self._rollout_candidates(space, P, initial_state, control, horizon)
+
+    def _rollout_candidates(self, space, P, initial_state, control, horizon):
         P = np.atleast_2d(P)
         if id(space) not in self._spaces_checked:
             check_space(space)
@@ -657,12 +677,17 @@ class WarpRollout:
         self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
-        fields = candidate_fields(space, P, self.models(B), self._raise)
+        # the same candidates on the same clip count as this slot's last call (the planner's belief, cycle
+        # after cycle) are already in its worlds
+        fkey = (id(space), P.shape, P.tobytes(), n)
+        fields = candidate_fields(space, P, self.models(B), self._raise) if fkey != s.fieldkey else None
         t1 = time.perf_counter()
-        self._set_fields(s, fields, B)
+        if fields is not None:
+            self._set_fields(s, fields, B)
+            s.fieldkey = fkey
         t2 = time.perf_counter()
         self._launch(s, hmax)
-        self.wp.synchronize_device(self.device)
+        self._sync()
         t3 = time.perf_counter()
         qpos, qvel = self._readback(s, nworld, hmax)
         qpos, qvel = qpos.reshape(B, n, hmax, m.nq), qvel.reshape(B, n, hmax, m.nv)
