@@ -357,7 +357,8 @@ def describe_split(settings: "RunSettings", clocked: bool, cpus: int | None = No
     """
     cpus = cpus or default_threads()
     planner_threads, mhe_threads, duty = core_split(settings, clocked, cpus)
-    text = f"the planner rolls out on {planner_threads or cpus} thread(s)"
+    text = ("the planner rolls out on the GPU (planner device cuda)" if settings.planner.device == "cuda"
+            else f"the planner rolls out on {planner_threads or cpus} thread(s)")
     if settings.mode != "adaptive":
         return text
     return text + ", the MHE on " + (f"{mhe_threads} core(s) of its own" if duty >= 1 else
@@ -559,7 +560,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 rate_checked = True
                 hz = 1.0 / max(float(np.median(plan_times[1:])), 1e-9)
                 if hz < MIN_REALTIME_HZ:
-                    warn(f"t={t:.2f} s: the planner replans at {hz:.1f} Hz on {planner.pool.nthread} thread(s), "
+                    warn(f"t={t:.2f} s: the planner replans at {hz:.1f} Hz on {planner.where()}, "
                          f"under the {MIN_REALTIME_HZ:g} Hz it needs on a robot: give it more cores, or fewer "
                          "planner samples (--config planner.samples)"
                          + (", or the MHE's own core back (mhe_cores: 0.5)" if estimator and mhe_duty >= 1 else ""))

@@ -6,7 +6,8 @@ Each control cycle the planner
 2. draws ``N`` sequences of joint-target *offsets* around the gait reference —
    ``K`` spline knots per joint, interpolated by a natural cubic spline over the
    horizon — and rolls them out under its own model ``f(p̂)`` through the shared
-   rollout pool (:class:`~amhe_cli.model.rollout.RolloutPool`),
+   rollout pool (:class:`~amhe_cli.model.rollout.RolloutPool`, or with ``device: cuda`` the
+   MuJoCo Warp backend, :class:`~amhe_cli.model.rollout_warp.WarpRollout`),
 3. scores them with the task cost (:meth:`~amhe_cli.control.tasks.Task.stage_cost`),
 4. moves the mean by MPPI weighting; and **only when the gait's contact mode
    changes** it first refines mean and σ over ``L_MPOPI`` loops of the elite
@@ -29,6 +30,7 @@ import numpy as np
 from amhe_cli.errors import AmheError, check_names
 from amhe_cli.control.gait import Gait
 from amhe_cli.control.reflex import trunk_tilt
+from amhe_cli.model.device import make_backend
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step, mppi_weights
@@ -52,6 +54,7 @@ class PlannerSettings:
         sigma_floor: σ never falls below this fraction of ``noise``, to avoid
             collapse of the covariance during MPC.
         sigma_ceiling: nor rises above this multiple of it.
+        device: rollout backend, ``cpu`` or ``cuda``.
     """
 
     dt: float = 0.01
@@ -78,6 +81,10 @@ class PlannerSettings:
     #: a wide distribution needs the loops to narrow onto the saving action (max tilt 22–24° against
     #: 24–27° with one loop, on the same restarts)
     recovery_refine: bool = True
+    #: where the rollouts run: ``cpu`` (``mujoco.rollout`` on threads) or ``cuda`` (MuJoCo Warp, every
+    #: sample a world of one batched model, float32; needs ``amhe[gpu]`` and a CUDA device):
+    #: docs/gpu.md#the-planner-on-the-gpu
+    device: str = "cpu"
 
     def check(self) -> None:
         """Raise :class:`AmheError` for settings that cannot work."""
@@ -90,6 +97,8 @@ class PlannerSettings:
             v = getattr(self, name)
             if len(v) != 3 or not all(x > 0 for x in v):
                 raise AmheError(f"planner {name} {list(v)}: expected three positive σ's [rad] (hip, thigh, calf)")
+        if self.device not in ("cpu", "cuda"):
+            raise AmheError(f"planner device {self.device!r}: expected cpu or cuda")
 
     @classmethod
     def from_dict(cls, d: dict) -> "PlannerSettings":
@@ -184,7 +193,7 @@ class Planner:
         space: the parameters a belief sets (written by :meth:`set_params`).
         task: the task whose cost is minimised.
         settings: :class:`PlannerSettings`.
-        nthread: rollout threads (default: all CPUs).
+        nthread: rollout threads (default: all CPUs; one where ``settings.device`` is ``cuda``).
         seed: sampling seed.
     """
 
@@ -196,8 +205,11 @@ class Planner:
             raise AmheError(f"planner scene timestep {scene.model.opt.timestep} differs from planner dt {s.dt}")
         self.scene, self.space, self.task = scene, space, task
         self.gait: Gait = task.gait_spec
-        self.pool = RolloutPool(scene.model, nthread)
-        self._models = self.pool.models(s.samples)
+        # the GPU, where asked, rolls the samples out; the CPU pool (one thread then) keeps the short
+        # latency-compensation rollout of predict(), a few steps that a GPU launch would only slow
+        self.gpu = make_backend(scene.model, "cuda") if s.device == "cuda" else None
+        self.pool = RolloutPool(scene.model, 1 if self.gpu else nthread)
+        self._models = self.pool.models(1 if self.gpu else s.samples)
         self.set_params(space.mean0)
         self.rng = np.random.default_rng(seed)
         self.knot_t = np.linspace(0.0, (s.horizon - 1) * s.dt, s.knots)
@@ -225,8 +237,14 @@ class Planner:
         """(K, 12) the knot σ this cycle samples around [rad]: the recovery's while recovering, else the task's."""
         return self.sigma_recover if self._recovering else self.sigma_task
 
+    def where(self) -> str:
+        """Where the samples roll out, for messages: ``the GPU`` or ``N thread(s)``."""
+        return "the GPU" if self.gpu is not None else f"{self.pool.nthread} thread(s)"
+
     def close(self) -> None:
         self.pool.close()
+        if self.gpu is not None:
+            self.gpu.close()
 
     def __enter__(self) -> "Planner":
         return self
@@ -236,7 +254,8 @@ class Planner:
 
     def set_params(self, values: np.ndarray) -> None:
         """Write a parameter vector (flat coordinates of ``space``) into every planner model copy."""
-        fields = self.space.model_fields(np.asarray(values, dtype=float))  # once, for every copy
+        self._belief = np.array(values, dtype=float)  # the GPU backend writes it into its worlds
+        fields = self.space.model_fields(self._belief)  # once, for every copy
         for m in self._models:
             self.space.write_fields(m, fields)
 
@@ -266,10 +285,15 @@ class Planner:
         u = self._controls(knots, ref)
         n = len(knots)
         init = np.broadcast_to(state, (n, state.size))
-        states = self.pool.rollout(self._models[:n], init, u)
+        if self.gpu is not None:  # one candidate (the belief), n clips: the samples
+            qpos, qvel, _ = self.gpu.rollout_candidates(self.space, self._belief[None], init, u,
+                                                        np.full(n, self.settings.horizon))
+            qpos, qvel = qpos[0].astype(float), qvel[0].astype(float)
+        else:
+            states = self.pool.rollout(self._models[:n], init, u)
+            qpos = states[..., self._qpos]
+            qvel = states[..., self._qvel]
         sc = self.scene
-        qpos = states[..., self._qpos]
-        qvel = states[..., self._qvel]
         box = qpos[..., sc.box_qpos[:3]]
         # sample 0 is the current mean: its predicted trunk and box paths, (H, 3) [m], for the live view
         self.mean_path = (qpos[0][:, sc.base_qpos[:3]], box[0])
