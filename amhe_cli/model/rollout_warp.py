@@ -677,14 +677,16 @@ class WarpRollout:
         self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
-        # the same candidates on the same clip count as this slot's last call (the planner's belief, cycle
-        # after cycle) are already in its worlds
-        fkey = (id(space), P.shape, P.tobytes(), n)
-        fields = candidate_fields(space, P, self.models(B), self._raise) if fkey != s.fieldkey else None
+        # the same candidates of the same space on the same clip count as this slot's last call (the
+        # planner's belief, cycle after cycle) are already in its worlds; the key holds the space itself,
+        # so a later space cannot pass for it by reusing its id
+        fkey = (P.shape, P.tobytes(), n)
+        same = s.fieldkey is not None and s.fieldkey[0] is space and s.fieldkey[1] == fkey
+        fields = None if same else candidate_fields(space, P, self.models(B), self._raise)
         t1 = time.perf_counter()
         if fields is not None:
             self._set_fields(s, fields, B)
-            s.fieldkey = fkey
+            s.fieldkey = (space, fkey)
         t2 = time.perf_counter()
         self._launch(s, hmax)
         self._sync()
