@@ -816,6 +816,31 @@ def test_estimator_failure_never_stops_the_controller(monkeypatch):
     assert est_v[0, r.labels.index("box_mass")] == pytest.approx(5.0)
 
 
+@pytest.mark.parametrize("shadow", [False, True])
+def test_a_shadow_mhe_estimates_but_the_planner_keeps_its_starting_belief(monkeypatch, shadow):
+    from amhe_cli.control.planner import Planner
+    written = []
+    real = Planner.set_params
+    monkeypatch.setattr(Planner, "set_params", lambda self, v: (written.append(np.array(v)), real(self, v))[1])
+    task = get_task("t1", duration=1.5)
+    r = run_task(task, belief(5.0, 0.3), small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25),
+                                                        mhe_shadow=shadow))
+    est_t, est_v, _ = r.estimates
+    assert len(est_t) >= 3  # the MHE updated in both
+    if shadow:
+        assert len(written) == 1  # the starting belief, written when the planner was made, and nothing after
+    else:
+        assert len(written) == len(est_t)
+
+
+def test_mhe_shadow_needs_the_adaptive_mode():
+    with pytest.raises(AmheError, match="mhe_shadow .* needs mode adaptive, not baseline"):
+        run_settings("t1", "baseline", {"mhe_shadow": True})
+    with pytest.raises(AmheError, match="config key mhe_shadow: 'yes' is not true or false"):
+        run_settings("t1", "adaptive", {"mhe_shadow": "yes"})
+    assert run_settings("t1", "adaptive", {"mhe_shadow": True})[1].mhe_shadow
+
+
 def test_an_exception_in_the_loop_closes_the_plant_with_its_reason_and_keeps_the_recording(monkeypatch):
     from amhe_cli.control.closed_loop import make_plant
     from amhe_cli.control.planner import Planner

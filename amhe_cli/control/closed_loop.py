@@ -201,6 +201,10 @@ class RunSettings:
             latency-compensated state, exactly as with ``realtime``), whatever this machine's
             speed; None (default): plain lock-step. A wall-clock loop's falls then reproduce on
             any machine, run after run (docs/fall_prevention.md#the-wall-clock).
+        mhe_shadow: ``adaptive`` mode only: the online MHE runs, and its estimates are recorded
+            and shown, but the planner keeps the starting belief — Baseline's control with the
+            estimator's load and a watch on its estimate (check an estimator on a robot before
+            trusting it; measure what running it costs the loop: docs/evaluation.md#on-the-emulated-go1).
     """
 
     mode: str = "adaptive"
@@ -216,10 +220,14 @@ class RunSettings:
     mhe_params: tuple = MHE_PARAMS
     reflex: ReflexSettings = field(default_factory=ReflexSettings)
     latency: float | None = None
+    mhe_shadow: bool = False
 
     def check(self) -> None:
         if self.mode not in MODES:
             raise AmheError(f"unknown mode {self.mode!r}: expected one of {', '.join(MODES)}")
+        if self.mhe_shadow and self.mode != "adaptive":
+            raise AmheError(f"mhe_shadow runs the online MHE beside a fixed belief: it needs mode adaptive, "
+                            f"not {self.mode}")
         check_names(self.mhe_params, RUN_PARAMS, "MHE parameter")
         if not self.mhe_params:
             raise AmheError(f"mhe_params is empty: expected some of {', '.join(RUN_PARAMS)}")
@@ -256,7 +264,8 @@ class RunResult:
         plan_times: (cycles,) wall time of each planner cycle [s].
         traj: the plant's recording (2 ms grid), truth series in ``meta``.
         estimates: (t [s], (n, d) physical values, (n, d) std) of the planner's
-            parameters each time they changed (t = plant time of the swap).
+            parameters each time they changed (t = plant time of the swap); with
+            ``mhe_shadow``, the MHE's estimates, which the planner did not take.
         labels: (d,) labels of the estimate columns.
         messages: the run's log (plant events, phase changes and all of ``warnings``).
         warnings: the messages a user should see: a fall, a lost box, estimator failures.
@@ -499,7 +508,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             view.belief(t, *belief_message(space.labels, v, sd, window, truth))
 
         def swap(values: np.ndarray, std: np.ndarray, t: float, window: np.ndarray | None = None) -> None:
-            planner.set_params(values)
+            if not s.mhe_shadow:  # in shadow the estimate is only recorded and shown
+                planner.set_params(values)
             v, sd = space.physical(values, std)
             est_t.append(t), est_v.append(v), est_s.append(sd)
             if view:
@@ -507,7 +517,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
 
         if view:
             view.scene(0.0)
-            view.log(0.0, f"{task.name} {s.mode}: run started", "info")
+            view.log(0.0, f"{task.name} {s.mode}{' (MHE in shadow: the planner keeps its starting belief)' if s.mhe_shadow else ''}"
+                     ": run started", "info")
             show_belief(0.0, est_v[0], est_s[0])
 
         sc = plant.scene

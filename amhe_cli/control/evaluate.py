@@ -36,7 +36,7 @@ from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
 CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task",
-               "safety", "reflex"}
+               "safety", "reflex", "mhe_shadow"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -65,6 +65,13 @@ def _number(config: dict, key: str) -> float:
         return float(config[key])
     except (TypeError, ValueError):
         raise AmheError(f"config key {key}: {config[key]!r} is not a number") from None
+
+
+def _flag(config: dict, key: str) -> bool:
+    """The config's ``key`` as a YAML boolean, or an :class:`AmheError` naming the key."""
+    if not isinstance(config[key], bool):
+        raise AmheError(f"config key {key}: {config[key]!r} is not true or false")
+    return config[key]
 
 
 def _names(value) -> tuple:
@@ -105,7 +112,8 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
                            reflex=ReflexSettings.from_dict(config.get("reflex") or {}),
                            **{k: _number(config, k) for k in ("kp", "kd", "cycle", "latency", "mhe_cores")
                               if config.get(k) is not None},
-                           **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}))
+                           **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}),
+                           **({"mhe_shadow": _flag(config, "mhe_shadow")} if "mhe_shadow" in config else {}))
     settings.check()
     return task, settings
 
