@@ -817,20 +817,26 @@ def test_estimator_failure_never_stops_the_controller(monkeypatch):
 
 
 @pytest.mark.parametrize("shadow", [False, True])
-def test_a_shadow_mhe_estimates_but_the_planner_keeps_its_starting_belief(monkeypatch, shadow):
+def test_a_shadow_mhe_estimates_but_the_planner_keeps_its_starting_belief(monkeypatch, tmp_path, shadow):
+    from mcap.reader import make_reader
+    from amhe_cli.control import closed_loop as cl
     from amhe_cli.control.planner import Planner
     written = []
     real = Planner.set_params
     monkeypatch.setattr(Planner, "set_params", lambda self, v: (written.append(np.array(v)), real(self, v))[1])
     task = get_task("t1", duration=1.5)
-    r = run_task(task, belief(5.0, 0.3), small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25),
-                                                        mhe_shadow=shadow))
+    settings = small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25), mhe_shadow=shadow)
+    r = run_task(task, belief(5.0, 0.3), settings)
     est_t, est_v, _ = r.estimates
     assert len(est_t) >= 3  # the MHE updated in both
     if shadow:
         assert len(written) == 1  # the starting belief, written when the planner was made, and nothing after
     else:
         assert len(written) == len(est_t)
+    cl.save_run(r, tmp_path / "run.mcap", task, settings)
+    with open(tmp_path / "run.mcap", "rb") as f:
+        meta = {m.name: m.metadata for m in make_reader(f).iter_metadata()}
+    assert meta["amhe_run"].get("mhe_shadow") == ("true" if shadow else None)  # a reader knows what was used
 
 
 def test_mhe_shadow_needs_the_adaptive_mode():

@@ -700,6 +700,7 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
                      "realtime": str(settings.realtime), "planner": json.dumps(settings.planner.to_dict()),
                      "mhe": json.dumps(to_plain(settings.mhe.to_dict())), "kp": str(settings.kp), "kd": str(settings.kd),
                      "metrics": json.dumps(to_plain(result.metrics())), "control_hz": str(result.control_hz),
+                     **({"mhe_shadow": "true"} if settings.mhe_shadow else {}),  # the estimates were not used
                      **{k: str(v) for k, v in (extra_meta or {}).items()}},
         "amhe_run_log": {f"{i:04d}": m for i, m in enumerate(result.messages)},
     }
