@@ -197,7 +197,10 @@ def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
     assert "motion capture stale: holding the stand" in proc.stderr
     t, valid, mode, q, kp, kd = emu.rows()
     t_freeze = first_valid_time(t, valid) + 4.5
-    held = valid & (t > t_freeze + 0.15) & (mode == SERVO).all(axis=1)
+    # the stand from 0.2 s after the freeze: the 100 ms mocap timeout, a pose period, the emulator's catch-up
+    # (at most 20 ms) and the relay's scheduling on a loaded 2-core machine (the suite's CI once saw the
+    # first 4 ms past 0.15 s still carry the push, on a day the machine ran the suite 1.7x slower)
+    held = valid & (t > t_freeze + 0.2) & (mode == SERVO).all(axis=1)
     assert held.sum() > 50
     assert np.abs(q[held] - STAND_JOINTS).max() < 0.02  # the stand, not the plan
     assert read_log(str(out)).duration > 1.0
