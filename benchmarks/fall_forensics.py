@@ -117,7 +117,7 @@ def probe_task(task_name: str, config: dict, threads: int) -> Belief:
     return probe_belief(task, seed=0, threads=threads)
 
 
-def rescue_log(a, config: dict, task_name: str) -> None:
+def rescue_log(a, config: dict, task_name: str, before: list[float]) -> None:
     """``--rescue-log``: restart the recovery from a recorded fall's states, one JSON line per restart.
 
     The restarted plant holds the task's starting truth (an event of the recorded run, such as T3's mass
@@ -127,7 +127,6 @@ def rescue_log(a, config: dict, task_name: str) -> None:
         traj = read_log(a.rescue_log)
     except AmheError as exc:
         sys.exit(f"fall_forensics: {exc}")
-    before = [float(x) for x in a.rescue.split(",") if x] or [0.5]
     tries = []
     for b in before:
         for seed in range(a.first_seed, a.first_seed + a.seeds):
@@ -159,8 +158,9 @@ def main() -> None:
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")
+    rescue_at = [float(x) for x in a.rescue.split(",") if x]  # seconds before a fall (or a recording's end)
     if a.rescue_log:
-        rescue_log(a, config, tasks[0])
+        rescue_log(a, config, tasks[0], rescue_at or [0.5])
         return
     beliefs = {}
     if set(modes) - {"true"}:
@@ -177,7 +177,6 @@ def main() -> None:
             if t in saved:
                 saved[t].parent.mkdir(parents=True, exist_ok=True)
                 b.save(saved[t])
-    rescue_at = [float(x) for x in a.rescue.split(",") if x]
     jobs = [(t, m, s, config, beliefs.get(t) if m != "true" else None, a.before, a.duration, rescue_at)
             for s in range(a.first_seed, a.first_seed + a.seeds) for t in tasks for m in modes]
     rows = []

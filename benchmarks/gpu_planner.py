@@ -118,7 +118,6 @@ def main() -> None:
         for dev, s in (("cpu", s_cpu), ("cuda", s_gpu)):
             if dev == "cpu" and n > a.cpu_max:
                 continue
-            s = replace(s, planner=replace(s.planner))
             t = replace(task, duration=a.cycles * s.cycle)
             t0 = time.perf_counter()
             r = run_task(t, None, s)

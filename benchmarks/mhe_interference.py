@@ -85,10 +85,10 @@ def main() -> None:
     print(f"recorded {len(calls)} planner calls over {traj.t[-1]:.1f} s of {a.task}", flush=True)
 
     os.sched_setaffinity(0, {cpu_plan})
+    truth = make_plant(task, s.kp, s.kd).truth_values
     medians = {}
     for cond in ("alone", "thread", "process", "alone"):
-        planner, _ = make_planner(task, replace(s, seed=0), None, make_plant(task, s.kp, s.kd).truth_values,
-                                  nthread=1)
+        planner, _ = make_planner(task, replace(s, seed=0), None, truth, nthread=1)
         count = mp.get_context("spawn").Value("i", 0)
         stop, worker = None, None
         if cond == "thread":
