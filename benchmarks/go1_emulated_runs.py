@@ -31,6 +31,7 @@ the MHE updates its core budget put off), then one row per
 
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
                                            [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--threads 3]
+                                           [--label TEXT]   # tags the rows: --table keeps labels apart
     python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
 
 A grid cut off keeps every finished run in ``--jsonl``; ``--table`` prints the table of
@@ -167,6 +168,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     text = f"{res.get('failure', '')} {res.get('reason', '')}"
     res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
                **({"threads": args.threads} if args.threads else {}),
+               **({"label": args.label} if args.label else {}),
                emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
@@ -191,7 +193,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 
 def table(rows: list[dict], tasks, modes) -> None:
-    """One row per (task, mode): S_R, falls, recoveries, trips, e_g, t_exec (to the goal, else the run's
+    """One row per (task, mode, ``--label``): S_R, falls, recoveries, trips, e_g, t_exec (to the goal, else the run's
     length), replanning rate, the medians of a run's
     lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
     each change."""
@@ -203,11 +205,10 @@ def table(rows: list[dict], tasks, modes) -> None:
         got = [r[key] for r in sel if r.get(key) is not None]
         return f"{np.median(got):g}" if got else "-"
 
-    for t in tasks:
-        for m in modes:
-            sel = [r for r in rows if r["task"] == t and r["mode"] == m]
-            if not sel:
-                continue
+    labels = list(dict.fromkeys(r.get("label", "") for r in rows))
+    for t, m, label in ((t, m, label) for t in tasks for m in modes for label in labels):
+        sel = [r for r in rows if r["task"] == t and r["mode"] == m and r.get("label", "") == label]
+        if sel:
             e_g = np.array([r.get("e_g", np.nan) for r in sel], dtype=float)
             t_exec = np.array([r.get("t_exec", np.nan) for r in sel], dtype=float)
             hz = [r["control_hz"] for r in sel if "control_hz" in r]
@@ -225,7 +226,8 @@ def table(rows: list[dict], tasks, modes) -> None:
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
                   f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f} {np.nanmean(t_exec):5.1f} ± {np.nanstd(t_exec):4.1f} "
                   f"{np.median(hz) if hz else float('nan'):5.1f} "
-                  f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs))
+                  f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs)
+                  + (f"  [{label}]" if label else ""))
 
 
 def main() -> None:
@@ -249,6 +251,9 @@ def main() -> None:
                          "client's CPUs, which gives the adaptive MHE one of 4): e.g. a baseline on 3 of 4 "
                          "plans at adaptive's rate")
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
+    ap.add_argument("--label", default=None,
+                    help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
+                         "rows with different labels apart")
     ap.add_argument("--table", nargs="+", default=None, metavar="JSONL",
                     help="print the table of the runs in these --jsonl files and exit")
     args = ap.parse_args()
