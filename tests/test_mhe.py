@@ -168,6 +168,7 @@ def test_cli_csv_and_mcap_round_trip(step_mcap, tmp_path):
     (["--params", "box_mass,volume"], ["volume"]),
     (["--alpha", "1.5"], ["--alpha"]),
     (["--sweep", "colour=1,2"], ["--sweep"]),
+    (["--fill", "0.5"], ["--fill 0.5", "needs --realtime"]),
 ])
 def test_cli_errors(step_mcap, tmp_path, args, words):
     proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(tmp_path / "x.csv"), *args],
@@ -175,6 +176,15 @@ def test_cli_errors(step_mcap, tmp_path, args, words):
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     line = proc.stderr.strip().splitlines()[-1]
     assert line.startswith("amhe: error:") and all(w in line for w in words)
+
+
+def test_cli_fill_reports_the_step_budgets_it_used(step_mcap, tmp_path):
+    proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(tmp_path / "x.csv"), "--realtime",
+                           "--fill", "0.5", "--every", "2", "--max-steps", "30", "--samples", "4", "--iters", "2",
+                           "--threads", "1", "--json"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    budget = json.loads(proc.stdout)["step_budget"]
+    assert budget["min"] == 30 and 30 < budget["max"] <= 120  # the first update at max_steps, then grown
 
 
 def test_a_live_clock_replay_defers_what_run_would_and_counts_it():
@@ -208,6 +218,53 @@ def test_a_live_clock_replay_defers_what_run_would_and_counts_it():
 def test_settings_check():
     with pytest.raises(AmheError, match="--clip"):
         MHESettings(window=0.5, clip=1.0).check()
+    for fill in (0.0, 1.5):
+        with pytest.raises(AmheError, match="mhe fill"):
+            MHESettings(fill=fill).check()
+
+
+def test_fill_sizes_the_step_budget_to_the_time_the_core_gives_an_update():
+    """``fill``: steps per candidate = fill · every · duty / (iters · time per step), kept within
+    [max_steps, FILL_MAX · max_steps]; without it the budget stays max_steps whatever the speed."""
+    from amhe_cli.estimation.mhe import FILL_MAX, SPEED_EMA
+
+    scene = Scene(SceneConfig())
+
+    def estimator(**kw):
+        return MovingHorizonEstimator(scene, ParameterSpace(scene, free=("box_mass", "box_friction")),
+                                      MHESettings(every=0.5, iters=3, max_steps=150, **kw))
+
+    with estimator() as m:
+        assert m.budget(0.01, 450) == 150  # no fill: a fast core changes nothing
+    with estimator(fill=0.8) as m:
+        assert m.budget(0.3, 450) == pytest.approx(200, abs=1)  # 0.4 s / (3 · 0.3 s / 450)
+        # the next update ran slower: the time per step moves by SPEED_EMA toward it
+        per_step = (1 - SPEED_EMA) * 0.3 / 450 + SPEED_EMA * 0.6 / 450
+        assert m.budget(0.6, 450) == pytest.approx(0.4 / (3 * per_step), abs=1) and m.steps < 199
+    with estimator(fill=0.8) as m:
+        assert m.budget(0.01, 450) == FILL_MAX * 150  # a core with time to spare: up to the cap
+    with estimator(fill=0.8) as m:
+        assert m.budget(1.0, 450) == 150  # a slow core: never below max_steps (deferral handles the rest)
+    for compute, steps in ((0.3, 150), (0.1, 300)):  # half a shared core: half the time (100 -> floor; 300)
+        with estimator(fill=0.8) as m:
+            m.duty = 0.5
+            assert m.budget(compute, 450) == pytest.approx(steps, abs=1)
+
+
+def test_fill_rolls_out_more_of_each_window_on_a_live_clock_replay(step_log):
+    """On a replay at run's clock an update with ``fill`` has more steps than max_steps where the period
+    leaves the core idle (every 2 s here), and no update is deferred for it."""
+    scene = Scene(SceneConfig())
+    budgets = {}
+    for fill in (None, 0.5):
+        space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+        st = MHESettings(every=2.0, iters=2, samples=4, max_steps=30, fill=fill)
+        with MovingHorizonEstimator(scene, space, st, nthread=1) as m:
+            res = replay(step_log, m, realtime=True)
+        assert res.deferred == 0
+        budgets[fill] = [u.steps for u in res.updates if not u.skipped]
+    assert len(budgets[None]) >= 3 and set(budgets[None]) == {30}
+    assert budgets[0.5][0] == 30 and max(budgets[0.5][1:]) > 30 and max(budgets[0.5]) <= 120
 
 
 def test_truth_change_times_name_where_a_parameter_takes_a_new_value():

@@ -839,6 +839,25 @@ def test_a_shadow_mhe_estimates_but_the_planner_keeps_its_starting_belief(monkey
     assert meta["amhe_run"].get("mhe_shadow") == ("true" if shadow else None)  # a reader knows what was used
 
 
+@pytest.mark.parametrize("realtime", [False, True])
+def test_mhe_fill_sizes_updates_to_the_core_share_the_run_gives_it(monkeypatch, realtime):
+    """``mhe: {fill}`` in a run: the estimator is told the duty of ``core_split`` (on the wall clock with
+    one CPU: half a shared core; lock-step: 1), and the run's log states the step budgets it used."""
+    from amhe_cli.estimation.mhe import MovingHorizonEstimator
+    monkeypatch.setattr("amhe_cli.control.closed_loop.default_threads", lambda: 1)
+    duties = []
+    real = MovingHorizonEstimator.budget
+    monkeypatch.setattr(MovingHorizonEstimator, "budget",
+                        lambda self, *a: (duties.append(self.duty), real(self, *a))[1])
+    task = get_task("t1", duration=2.0)
+    settings = small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25, max_steps=40, fill=0.5),
+                              realtime=realtime)
+    r = run_task(task, belief(5.0, 0.3), settings)
+    assert duties and set(duties) == {0.5 if realtime else 1.0}
+    line = [m for m in r.messages if m.startswith("MHE step budget per candidate")]
+    assert len(line) == 1 and "mhe fill 0.5: from max_steps 40 up to 160" in line[0]
+
+
 def test_mhe_shadow_needs_the_adaptive_mode():
     with pytest.raises(AmheError, match="mhe_shadow .* needs mode adaptive, not baseline"):
         run_settings("t1", "baseline", {"mhe_shadow": True})

@@ -52,6 +52,10 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="With --realtime: the share of a core the estimator may keep busy, deferring updates to stay "
                    "under it, as `amhe run` does where the MHE shares the planner's CPUs (0.5 there; "
                    "default 1: a core of its own).")
+@click.option("--fill", default=None, type=click.FloatRange(0, 1, min_open=True),
+              help="With --realtime: size each update's steps to this share of the update period (times "
+                   "--duty) from the measured speed, from --max-steps up to 4x it, as `amhe run` does with "
+                   "mhe: {fill} (docs/config.md). Default: --max-steps fixed.")
 @click.option("--truth", "truth_csv", type=click.Path(), default=None,
               help="Ground-truth CSV (default: <log stem>.truth.csv beside the log, if any).")
 @click.option("--sweep", default=None, metavar="NAME=V1,V2,…",
@@ -73,7 +77,7 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, realtime, duty, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
+                   clip, max_steps, fuse, realtime, duty, fill, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
                    force, as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
@@ -87,12 +91,14 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     from amhe_cli.cli.plot import check_png_name, plot_estimates
     from amhe_cli.estimation.replay import estimates_table, replay, tracking_error, truth_series
     settings = MHESettings(window=window, every=every, iters=iters, samples=samples, alpha=alpha,
-                           clip=clip if clip > 0 else None, max_steps=max_steps, fuse=fuse, seed=seed)
+                           clip=clip if clip > 0 else None, max_steps=max_steps, fuse=fuse, fill=fill, seed=seed)
     settings.check()
     free = parse_names(params)
     smooth = parse_smooth(smooth)
     if duty is not None and not realtime:
         raise AmheError(f"--duty {duty:g} shares the live clock's core: it needs --realtime")
+    if fill is not None and not realtime:
+        raise AmheError(f"--fill {fill:g} sizes updates to the live clock's period: it needs --realtime")
     if sweep is not None:
         if out or mcap_out or plot or live:
             raise AmheError("--sweep prints a table and writes no file: drop --out, --mcap, --plot and --live")
@@ -208,6 +214,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         "lag_s": {"mean": float(lags.mean()) if len(lags) else 0.0, "max": float(lags.max()) if len(lags) else 0.0},
         "tracking_error": errors, "csv": str(out_path),
     }
+    steps = [u.steps for u in res.updates if not u.skipped and u.steps is not None]
+    if fill is not None and steps:
+        summary["step_budget"] = {"median": int(np.median(steps)), "min": min(steps), "max": max(steps)}
     if errors:
         summary["tracking_error_units"] = {k: TRACKING_ERROR_UNITS[k] for k in errors}
         summary["tracking_error_definition"] = TRACKING_ERROR_TEXT
@@ -234,6 +243,9 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         why = "the last one still running" + (f", or resting under --duty {duty:g}" if duty else "")
         click.echo(f"realtime factor {res.realtime_factor:.2f}; {res.deferred} of {res.deferred + len(res.updates)} "
                    f"due update(s) deferred ({why}); lag mean {lags.mean():.3f} s, max {lags.max():.3f} s")
+        if "step_budget" in summary:
+            b = summary["step_budget"]
+            click.echo(f"step budget per candidate (--fill {fill:g}): median {b['median']}, {b['min']}–{b['max']}")
     click.echo(f"estimates written to {out_path}" + (f", {mcap_path}" if mcap_path else "")
                + (f"; plot to {plot_path}" if plot_path else ""))
 

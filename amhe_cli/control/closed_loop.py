@@ -50,7 +50,7 @@ from amhe_cli.io.plain import to_plain
 from amhe_cli.errors import AmheError, check_names
 from amhe_cli.io.quat import quat_to_yaw
 from amhe_cli.io.writer import write_mcap
-from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, Update
+from amhe_cli.estimation.mhe import FILL_MAX, MHESettings, MovingHorizonEstimator, Update
 from amhe_cli.estimation.mhe import rested as mhe_rested
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.plants.base import Plant, PlantFailure
@@ -472,6 +472,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
 
     failure = None
     mhe_deferred = 0
+    mhe_steps: list[int] = []  # each informative update's step budget (MHESettings.fill)
     estimator, planner = None, None
     plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
@@ -488,6 +489,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                                     prior_std=_belief_std(belief))
             mhe_settings = replace(s.mhe, seed=s.seed)
             estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=mhe_threads))
+            estimator.mhe.duty = mhe_duty  # the core share MHESettings.fill sizes an update to
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
                 note(describe_split(s, clocked))
@@ -609,6 +611,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 if res is not None:
                     pending = False
                     if not res.skipped:
+                        mhe_steps.append(res.steps)
                         window = None
                         if view and res.window_mean is not None:
                             own = replace(res, mean=res.window_mean)
@@ -644,6 +647,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator within "
                         + (f"{mhe_duty:.0%} of a core" if mhe_duty < 1 else f"its {mhe_threads} core(s)")
                         + " on the wall clock")
+    if mhe_steps and s.mhe.fill is not None:
+        messages.append(f"MHE step budget per candidate: median {int(np.median(mhe_steps))}, {min(mhe_steps)}–"
+                        f"{max(mhe_steps)} over {len(mhe_steps)} updates (mhe fill {s.mhe.fill:g}: from max_steps "
+                        f"{s.mhe.max_steps} up to {int(FILL_MAX * s.mhe.max_steps)})")
     if failure is not None:
         warn(f"run stopped: {failure}")
     traj = plant.recording()

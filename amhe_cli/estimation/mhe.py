@@ -111,6 +111,11 @@ class MHESettings:
             is fused. Off by default (the lock-step closed loop of Table II is
             measured without it); ``mhe-replay`` and ``run`` on the wall clock
             turn it on (:data:`REPLAY_SETTINGS`, :data:`REALTIME_MHE`).
+        fill: on the wall clock, the share of the update period (``every``, times the share of a core
+            the estimator is given: :attr:`MovingHorizonEstimator.duty`) an update may take. The step
+            budget then follows the measured speed update by update (:meth:`MovingHorizonEstimator.budget`),
+            from ``max_steps`` up to :data:`FILL_MAX` times it: more of each window rolled out where the
+            core has time to spare. None (default): ``max_steps`` fixed, as offline.
         seed: sampling seed.
         device: rollout backend, ``cpu``, ``cuda`` or ``auto``
             (:func:`~amhe_cli.model.device.choose_device`); None (default): the
@@ -130,6 +135,7 @@ class MHESettings:
     max_steps: int = 150
     min_speed: float = 0.02
     fuse: bool = False
+    fill: float | None = None
     seed: int = 0
     device: str | None = None
 
@@ -143,6 +149,9 @@ class MHESettings:
             raise AmheError(f"--alpha {self.alpha}: expected a learning rate in (0, 1]")
         if self.device is not None and self.device not in ("auto", "cpu", "cuda"):
             raise AmheError(f"mhe device {self.device!r}: expected auto, cpu or cuda")
+        if self.fill is not None and not 0 < self.fill <= 1:
+            raise AmheError(f"mhe fill {self.fill}: expected the share of the update period an update may take, "
+                            "in (0, 1], or null for a fixed max_steps")
         if self.clip is not None and not 0 < self.clip <= self.window:
             raise AmheError(f"--clip {self.clip}: expected 0 < clip <= window ({self.window} s), or 0 for one piece")
 
@@ -168,6 +177,11 @@ REPLAY_SETTINGS = {"max_steps": 300, "samples": 20, "fuse": True}
 #: 0.23 against 0.35, but its mass 33 % against 19 % (docs/evaluation.md). No margin on the falls; taken
 #: for the estimator that runs on time. The lock-step sim keeps the library's, unfused (Table II).
 REALTIME_MHE = {"fuse": True}
+
+#: Largest step budget :attr:`MHESettings.fill` may reach, as a multiple of ``max_steps``.
+FILL_MAX = 4.0
+#: Weight of the latest update in the running estimate of the estimator's speed (``fill``).
+SPEED_EMA = 0.3
 
 
 def rested(idle: float, compute_time: float, duty: float) -> bool:
@@ -196,6 +210,7 @@ class Update:
         compute_time: wall time of the update [s].
         skipped: True if the window held no informative data (estimate kept).
         window_mean: (d,) the window's own estimate (eq. 4); equals ``mean`` without fusion.
+        steps: the step budget per candidate this update had (``max_steps``, or ``fill``'s).
     """
 
     t: float
@@ -206,6 +221,7 @@ class Update:
     compute_time: float
     skipped: bool
     window_mean: np.ndarray | None = None
+    steps: int | None = None
 
 
 class MovingHorizonEstimator:
@@ -228,6 +244,9 @@ class MovingHorizonEstimator:
         std: (d,) its σ after the last update.
         window_mean: (d,) the last window's own estimate, the ``p̂⁻`` of the next window.
         fusion: the :class:`~amhe_cli.estimation.fusion.WindowFusion`, or None.
+        duty: share of a core the estimator is given (1: a core of its own; ``run`` sets it from
+            ``mhe_cores``): with ``settings.fill`` an update aims at ``fill · every · duty`` seconds.
+        steps: step budget per candidate of the next update (:meth:`budget`).
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -252,6 +271,28 @@ class MovingHorizonEstimator:
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
         self.pull_std = pull
+        self.duty = 1.0
+        self.steps = self.settings.max_steps
+        self._step_time: float | None = None  # running estimate [s] of one step of one candidate
+
+    def budget(self, compute_time: float, simulated: int) -> int:
+        """Step budget per candidate for the next update, from the last one (``settings.fill``).
+
+        An update that simulated ``simulated`` steps (per candidate, over all its iterations) in
+        ``compute_time`` [s] updates the running time per step (weight :data:`SPEED_EMA`); the budget is
+        then the steps that ``iters`` iterations can take in ``fill · every · duty`` seconds, clipped to
+        ``[max_steps, FILL_MAX · max_steps]``. The time per step is charged with everything else the
+        update did, so the budget errs short. Without ``fill`` it stays ``max_steps``.
+        """
+        s = self.settings
+        if s.fill is None or simulated <= 0 or not compute_time > 0:
+            return self.steps
+        per_step = compute_time / simulated
+        self._step_time = per_step if self._step_time is None else (
+            (1 - SPEED_EMA) * self._step_time + SPEED_EMA * per_step)
+        steps = s.fill * s.every * self.duty / (s.iters * self._step_time)
+        self.steps = int(np.clip(steps, s.max_steps, FILL_MAX * s.max_steps))
+        return self.steps
 
     def close(self) -> None:
         if self._own_pool:
@@ -269,7 +310,7 @@ class MovingHorizonEstimator:
         start = max(0, stop - int(round(s.window / traj.dt)))
         clip = None if s.clip is None else min(max(s.clip, noise_clip(traj)), s.window)
         clip_steps = None if clip is None else int(round(clip / traj.dt))
-        return window_clips(traj, self.scene, start, stop, clip_steps, s.max_steps, s.min_speed,
+        return window_clips(traj, self.scene, start, stop, clip_steps, self.steps, s.min_speed,
                             rest_travel(traj))
 
     def update(self, traj: Trajectory, t: float) -> Update:
@@ -280,10 +321,11 @@ class MovingHorizonEstimator:
         t0 = time.perf_counter()
         s = self.settings
         stop = int(np.searchsorted(traj.t, t, side="right"))
+        steps = self.steps
         clips = self.window_clips(traj, stop)
         if clips is None:
             return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True,
-                          self.window_mean.copy())
+                          self.window_mean.copy(), steps)
         weights = self.weights or StateWeights.for_log(traj)
         if self._cost is None:
             self._cost = RolloutCost(self.scene, self.space, clips, weights, pool=self.pool)
@@ -311,4 +353,6 @@ class MovingHorizonEstimator:
         j = float(np.min(J))
         if self.fusion is not None:
             self.mean, self.std = self.fusion.update(t, mu), self.fusion.std
-        return Update(t, self.mean.copy(), self.std.copy(), j, it, time.perf_counter() - t0, False, mu.copy())
+        elapsed = time.perf_counter() - t0
+        self.budget(elapsed, it * int(np.sum(clips.horizon)))
+        return Update(t, self.mean.copy(), self.std.copy(), j, it, elapsed, False, mu.copy(), steps)

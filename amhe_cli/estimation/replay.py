@@ -86,6 +86,8 @@ def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False
     if not 0 < duty <= 1:
         raise AmheError(f"duty {duty}: expected the estimator's share of a core in (0, 1]")
     s = mhe.settings
+    if realtime:
+        mhe.duty = duty  # what MHESettings.fill sizes an update to, as run's core split does
     t_end = float(traj.t[-1])
     due = float(traj.t[0]) + s.window
     free_at, last = -np.inf, 0.0  # live clock: when the last update finished, what it took [s]
