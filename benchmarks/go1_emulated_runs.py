@@ -60,6 +60,7 @@ AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
+STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -179,6 +180,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     res["lost_box"] = log.count("lost the box")
     m = DEFERRED.search(log)
     res["mhe_deferred"] = int(m.group(1)) if m else 0
+    m = STEPS.search(log)
+    if m:  # mhe fill: the step budget the estimator's core afforded
+        res["mhe_steps"] = int(m.group(1))
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
