@@ -849,7 +849,7 @@ def test_mhe_fill_sizes_updates_to_the_core_share_the_run_gives_it(monkeypatch, 
     real = MovingHorizonEstimator.budget
     monkeypatch.setattr(MovingHorizonEstimator, "budget",
                         lambda self, *a: (duties.append(self.duty), real(self, *a))[1])
-    task = get_task("t1", duration=2.0)
+    task = get_task("t1", duration=3.0)  # the box moves within it, on a loaded machine's wall clock too
     settings = small_settings("adaptive", mhe=MHESettings(window=0.5, every=0.25, max_steps=40, fill=0.5),
                               realtime=realtime)
     r = run_task(task, belief(5.0, 0.3), settings)
