@@ -30,21 +30,17 @@ from dataclasses import replace
 
 import numpy as np
 
-from amhe_cli.control.closed_loop import RUN_PARAMS, make_plant, make_planner, run_task, task_scene_config
+from amhe_cli.control.closed_loop import RUN_PARAMS, make_estimator, make_plant, make_planner, run_task
 from amhe_cli.control.evaluate import run_settings
 from amhe_cli.control.planner import Planner
-from amhe_cli.estimation.mhe import REALTIME_MHE, MHESettings, MovingHorizonEstimator
-from amhe_cli.model.params import ParameterSpace
-from amhe_cli.model.scene import Scene
+from amhe_cli.estimation.mhe import MovingHorizonEstimator
 
 
 def make_mhe(task_name: str) -> MovingHorizonEstimator:
+    """``run``'s MHE on the wall clock (its settings from a config with a latency), from the truth."""
     task, s = run_settings(task_name, "adaptive", {"latency": 0.035})
     plant = make_plant(task, s.kp, s.kd)
-    scene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
-    prior = {k: v for k, v in plant.truth_values.items() if k in RUN_PARAMS}
-    space = ParameterSpace(scene, free=s.mhe_params, prior=prior)
-    return MovingHorizonEstimator(scene, space, MHESettings(**REALTIME_MHE), nthread=1)
+    return make_estimator(task, s, plant.record_dt, {k: v for k, v in plant.truth_values.items() if k in RUN_PARAMS})
 
 
 def mhe_loop(task_name: str, traj, cpu: int, stop, count) -> None:

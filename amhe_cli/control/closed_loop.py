@@ -318,6 +318,20 @@ def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, r
     return plant
 
 
+def make_estimator(task: Task, settings: "RunSettings", record_dt: float, prior: dict, prior_std: dict | None = None,
+                   nthread: int = 1, duty: float = 1.0) -> MovingHorizonEstimator:
+    """The online MHE of an ``adaptive`` run (paper §IV-A): the task's scene on the plant's recording grid
+    ``record_dt`` [s], ``settings.mhe_params`` free around ``prior`` (name -> value; ``prior_std`` name ->
+    σ, None: the nominal σ), ``settings.mhe`` seeded with the run's seed, ``nthread`` rollout threads and
+    ``duty``, the share of a core :func:`core_split` gives it (what ``MHESettings.fill`` sizes updates to).
+    """
+    scene = Scene(task_scene_config(task, record_dt, settings.kp, settings.kd))
+    space = ParameterSpace(scene, free=settings.mhe_params, prior=prior, prior_std=prior_std)
+    mhe = MovingHorizonEstimator(scene, space, replace(settings.mhe, seed=settings.seed), nthread=nthread)
+    mhe.duty = duty
+    return mhe
+
+
 def _belief_std(belief: Belief | None) -> dict | None:
     return None if belief is None else {k: v for k, v in belief.std.items() if v and k in RUN_PARAMS}
 
@@ -484,12 +498,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         planner_threads, mhe_threads, mhe_duty = core_split(s, clocked)
         planner, space = make_planner(task, s, belief, plant.truth_values or {}, nthread=planner_threads)
         if s.mode == "adaptive":
-            mscene = Scene(task_scene_config(task, plant.record_dt, s.kp, s.kd))
-            mspace = ParameterSpace(mscene, free=s.mhe_params, prior=space.values(space.mean0),
-                                    prior_std=_belief_std(belief))
-            mhe_settings = replace(s.mhe, seed=s.seed)
-            estimator = EstimatorThread(MovingHorizonEstimator(mscene, mspace, mhe_settings, nthread=mhe_threads))
-            estimator.mhe.duty = mhe_duty  # the core share MHESettings.fill sizes an update to
+            estimator = EstimatorThread(make_estimator(task, s, plant.record_dt, space.values(space.mean0),
+                                                       _belief_std(belief), mhe_threads, mhe_duty))
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
                 note(describe_split(s, clocked))
