@@ -12,8 +12,8 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
-from the client's own; ``lost_box`` counts the client's push-to-approach switches and ``mhe_deferred``
-the MHE updates its core budget put off), then one row per
+from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``mhe_deferred``
+the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s]), then one row per
 (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -61,6 +61,7 @@ EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic (
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
+UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -183,6 +184,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     m = STEPS.search(log)
     if m:  # mhe fill: the step budget the estimator's core afforded
         res["mhe_steps"] = int(m.group(1))
+    m = UPDATE_TIME.search(log)
+    if m:  # the wall time of its updates on the core it had: why fill's budget grew or did not
+        res["mhe_update_s"] = float(m.group(1))
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)

@@ -856,6 +856,10 @@ def test_mhe_fill_sizes_updates_to_the_core_share_the_run_gives_it(monkeypatch, 
     assert duties and set(duties) == {0.5 if realtime else 1.0}
     line = [m for m in r.messages if m.startswith("MHE step budget per candidate")]
     assert len(line) == 1 and "mhe fill 0.5: from max_steps 40 up to 160" in line[0]
+    took = [m for m in r.messages if m.startswith("MHE updates took a median")]  # on the wall clock only
+    assert len(took) == (1 if realtime else 0)
+    if realtime:
+        assert float(took[0].split()[5]) > 0 and "of the 0.25 s between them" in took[0]
 
 
 def test_mhe_shadow_needs_the_adaptive_mode():
