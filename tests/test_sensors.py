@@ -328,6 +328,29 @@ def test_velocity_noise_matches_a_resting_box_and_lengthens_the_mhe_clips(tmp_pa
     assert long_clips.horizon.max() == want > short_clips.horizon.max() == int(round(0.1 / read.dt))
 
 
+def test_the_mhe_spends_the_rest_of_its_step_budget_on_the_next_clip_cut_to_it(tmp_path):
+    """A noise-sized clip that does not divide the step budget leaves a remainder; where it is at least half
+    a clip the next most excited clip is rolled out cut to it (a 95-step clip in 150 steps was one clip,
+    55 steps unspent), where less it is left; a clean log's 0.1 s clips divide the library's 150."""
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, noise_clip
+    traj, read, clean = _with_box_noise(tmp_path, 0.001, seed=2)
+    c = int(round(noise_clip(read) / read.dt))
+    assert c > 60  # longer than the 0.1 s (50-step) clip of a clean log
+    speed = np.linalg.norm(traj.box_linvel[:, :2], axis=1)
+    stop = int(np.argmax(speed > 0.05)) + 200
+    scene = Scene(SceneConfig())
+
+    def horizons(log, **kw):
+        space = ParameterSpace(scene, free=("box_mass", "box_friction"))
+        with MovingHorizonEstimator(scene, space, MHESettings(window=1.0, **kw), nthread=1) as m:
+            return sorted(m.window_clips(log, stop).horizon.tolist())
+
+    budget = c + (2 * c) // 3
+    assert horizons(read, max_steps=budget) == [budget - c, c]  # the whole budget
+    assert horizons(read, max_steps=c + c // 3) == [c]  # a third of a clip: left unspent
+    assert horizons(clean, max_steps=150) == [50, 50, 50]
+
+
 def test_identify_plans_its_clips_by_the_logs_noise_and_robot(tmp_path):
     """identify.clip_plan: 48 clips of 0.07–0.13 s where the box's velocity holds no measurement noise (a
     push's chaos grows with the horizon), 32 of 0.1–0.2 s where it does (a longer clip outweighs its noisy
