@@ -352,10 +352,9 @@ def window_clips(traj: Trajectory, scene: Scene, start: int, stop: int, clip_ste
     budget = np.inf if max_steps is None else max(max_steps, horizons[order][0])
     fits = np.cumsum(horizons[order]) <= budget
     chosen = order[fits]
-    rest = int(budget - horizons[chosen].sum()) if np.isfinite(budget) else 0
-    if not fits.all() and rest >= step // 2:  # the budget's remainder: the next clip, cut to it
+    rest = 0 if fits.all() else int(budget - horizons[chosen].sum())  # a clip left out: the budget is finite
+    if rest >= max(1, step // 2):  # the budget's remainder: the next clip, cut to it (horizons: a copy already)
         nxt = order[np.argmin(fits)]
-        horizons = horizons.copy()
         horizons[nxt] = rest
         chosen = np.append(chosen, nxt)
     chosen = np.sort(chosen)
