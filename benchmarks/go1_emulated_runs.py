@@ -12,9 +12,9 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
-from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``mhe_deferred``
-the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s]), then one row per
-(task, mode):
+from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``recoveries_why``
+holds [t, reason] of each fall-reflex recovery, ``mhe_deferred`` the MHE updates its core budget put
+off and ``mhe_update_s`` their median wall time [s]), then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
@@ -62,6 +62,8 @@ EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
+#: the fall reflex's start of a recovery, with what set it off (reflex.FallReflex.update)
+RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -179,6 +181,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     records = run_records(recording)  # read once
     log = " ".join(records.get("amhe_run_log", {}).values())
     res["lost_box"] = log.count("lost the box")
+    # when each recovery started and why (a tilt, a height, a rate, or every sampled plan tilting):
+    # the rows then tell which part of the loop pushed the trunk out of its envelope
+    res["recoveries_why"] = [[float(t), why] for t, why in RECOVERY.findall(log)]
     m = DEFERRED.search(log)
     res["mhe_deferred"] = int(m.group(1)) if m else 0
     m = STEPS.search(log)

@@ -191,6 +191,60 @@ def test_a_recovery_samples_wide_refines_every_cycle_and_the_task_gets_its_own_n
         PlannerSettings(recovery_noise=(0.1, 0.2)).check()
 
 
+def test_a_steady_trunk_in_recovery_holds_the_stand_with_the_tasks_noise_from_the_reference(monkeypatch):
+    """While recovering, a steady trunk (under ``hold_tilt``, slow, high, no forecast fall) turns the command's
+    phase to ``hold``: the planner drops the recovery's wide σ and its drifted mean and samples the stand's
+    reference at the task's ``noise``; a trunk tipping again (tilted, rolling, or every plan tilting) is
+    caught with the wide σ again. ``hold_tilt`` 0 catches throughout."""
+    from amhe_cli.control.closed_loop import make_planner
+    from amhe_cli.control.gait import GAITS
+    from amhe_cli.control.planner import Planner
+
+    r = FallReflex()
+    r.update(0.0, UP, tilted(0.4), STILL)
+    assert r.active and not r.holding  # the first cycle catches
+    r.update(0.1, UP, tilted(0.15), STILL, predicted_tilt=0.1)
+    assert r.holding  # 9°, still, outside the exit envelope: held, not caught
+    for pos, quat, angvel, forecast in ((UP, tilted(0.25), STILL, 0.1),  # tilted past hold_tilt
+                                        (UP, LEVEL, np.array([1.0, 0.0, 0.0]), 0.1),  # rolling
+                                        (np.array([0.0, 0.0, 0.2]), LEVEL, STILL, 0.1),  # low
+                                        (UP, LEVEL, STILL, 0.4)):  # every plan tilts past 20°
+        r.update(0.2, pos, quat, angvel, predicted_tilt=forecast)
+        assert r.active and not r.holding
+    off = FallReflex(ReflexSettings(hold_tilt=0.0))
+    off.update(0.0, UP, tilted(0.4), STILL)
+    off.update(0.1, UP, LEVEL, STILL)
+    assert off.active and not off.holding
+    with pytest.raises(AmheError, match="hold_tilt"):
+        ReflexSettings(hold_tilt=0.05).check()  # under exit_tilt: a settling trunk would be caught
+
+    drawn, means = [], []
+    score = Planner._score
+
+    def spy(self, state, knots, ref, cmd):
+        drawn.append(np.std(knots[1:] - self.mean[None], axis=0).mean(axis=0)[:3])
+        means.append(np.abs(self.mean).max())
+        return score(self, state, knots, ref, cmd)
+
+    monkeypatch.setattr(Planner, "_score", spy)
+    task = get_task("t1")
+    settings = RunSettings(mode="true", threads=1, planner=PlannerSettings(
+        samples=200, horizon=6, knots=2, refine_loops=1, noise=(0.01, 0.02, 0.02), recovery_noise=(0.1, 0.2, 0.2)))
+    planner, _ = make_planner(task, settings, None, task.truth)
+    plant = make_plant(task, settings.kp, settings.kd)
+    state = planner.scene.full_state(plant.data.qpos[None], plant.data.qvel[None])[0]
+    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), 0.19)
+    rec, hold = recovery_command(cmd, np.zeros(2), 0.0), recovery_command(cmd, np.zeros(2), 0.0, hold=True)
+    assert hold["phase"] == "hold" and rec["phase"] == "recover"
+    with planner:
+        for t, c in ((0.0, rec), (0.02, rec), (0.04, hold), (0.06, hold), (0.08, rec)):
+            planner.plan(state, t, c, GAITS["stand"])
+    np.testing.assert_allclose(drawn[1], [0.1, 0.2, 0.2], rtol=0.25)  # catching: wide
+    assert means[1] > 0.01 and means[2] == 0.0  # the hold starts from the stand's reference ...
+    assert np.all(drawn[2] < 0.03) and np.all(drawn[3] < 0.03)  # ... at the task's noise
+    np.testing.assert_allclose(drawn[4], [0.1, 0.2, 0.2], rtol=0.25)  # tipping again: wide again
+
+
 def test_a_planner_too_slow_for_the_wall_clock_is_said_at_the_start(monkeypatch):
     """On the wall clock a plan's compute time is open-loop time: a planner under 15 Hz gets a warning after its
     first cycles, naming its rate and what to do; a fast one gets none."""

@@ -556,7 +556,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")
             if reflex.active:
-                cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw)
+                cmd = recovery_command(cmd, q[sc.base_qpos[:2]], yaw, hold=reflex.holding)
             if cmd["phase"] != phase:
                 if phase == "push" and cmd["phase"] == "approach":
                     warn(f"t={t:.2f} s: lost the box, walking back behind it")

@@ -314,7 +314,8 @@ class Planner:
             cmd: the task's :meth:`~amhe_cli.control.tasks.Task.command` for this cycle. A
                 ``phase`` of ``recover`` (:func:`~amhe_cli.control.reflex.recovery_command`)
                 samples with ``recovery_noise`` from a mean reset to the reference, refining every
-                cycle if ``recovery_refine``; the first cycle after it starts the task's σ afresh.
+                cycle if ``recovery_refine``; the first cycle after it (a ``hold`` of the stand, or the
+                task) starts the task's σ afresh from the reference.
             gait: the gait to track this cycle (default: the task's); the fall
                 reflex (:mod:`~amhe_cli.control.reflex`) asks for ``stand``. A change
                 of gait changes the contact mode, so the cycle refines.
