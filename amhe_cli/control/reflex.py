@@ -18,7 +18,9 @@ floor below :attr:`ReflexSettings.enter_height`, or a roll/pitch rate beyond
 foresees the fall where the task's narrow sampling finds no way out), the
 closed loop replaces the task's command by :func:`recovery_command` — no
 walking, no pushing, the trunk level at the stand's height where it stands —
-and the planner tracks the ``stand`` gait with all four feet planted. Once the
+and the planner tracks the ``stand`` gait with all four feet planted: searching wide
+while the trunk tips, holding the stand's reference at the task's noise while it is steady
+(:attr:`ReflexSettings.hold_tilt`). Once the
 trunk has been back inside the tighter exit envelope for
 :attr:`ReflexSettings.settle` seconds, the task resumes (its approach phase
 first, if the robot lost the box meanwhile). A safety trip stays
