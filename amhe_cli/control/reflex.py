@@ -138,6 +138,7 @@ class FallReflex:
 
     @property
     def holding(self) -> bool:
+        """True while recovering with the trunk steady at the last :meth:`update` (hold the stand, don't catch)."""
         return self.active and self._steady
 
     def update(self, t: float, base_pos: np.ndarray, base_quat: np.ndarray, base_angvel: np.ndarray,
