@@ -161,7 +161,9 @@ def first_valid_time(t, valid):
 
 @pytest.mark.parametrize("fault", ["link-loss", "corrupt"])
 def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, fault):
-    # only a run that the emulator's own stall ended before the fault is tried again (stall_retries)
+    # only a run that the emulator's own stall spoiled is tried again (stall_retries): one that ended it
+    # before the fault, or one where the damping reached it late and it had stalled (a corrupt state
+    # stream still counts its gaps; a client that damps late with no such stall fails below)
     for emu, where in stall_retries(emulator, tmp_path, "--fault", f"{fault}@4.5"):
         proc, out = run_client(emu, where, "--arm", "--duration", "20")
         emu.stop()
@@ -169,18 +171,21 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
         t_loss = first_valid_time(t, valid) + 4.5
         servo = valid & (mode == SERVO).all(axis=1)
         early = valid & (t < t_loss) & (t > t[np.argmax(servo)]) & damped(mode, kp, kd)
-        if not early.any():
+        after = (t >= t_loss) & valid & damped(mode, kp, kd)
+        late = after.any() and t[after][0] - t_loss > 0.05 + 0.004
+        if not early.any() and not (late and emu.longest_gap() > SafetySettings().state_timeout):
             break
-        assert_stalled(emu, f"damped {t_loss - t[early][0]:.3f} s before the fault", proc.stderr)
+        if early.any():
+            assert_stalled(emu, f"damped {t_loss - t[early][0]:.3f} s before the fault", proc.stderr)
     assert proc.returncode == 2, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "no valid robot state" in errors[0] and "Traceback" not in proc.stderr
     assert json.loads(proc.stdout)["failure"].startswith("no valid robot state")
     before = (t < t_loss) & valid
     assert (mode[before] == SERVO).all(axis=1).sum() > 500  # it was standing and walking on servo commands
-    after = (t >= t_loss) & valid & damped(mode, kp, kd)
     assert after.any(), f"no damping command after the fault; the client said:\n{proc.stderr}"
-    assert t[after][0] - t_loss <= 0.05 + 0.004  # within 50 ms of the last state (+ two emulator ticks)
+    # within 50 ms of the last state (+ two emulator ticks)
+    assert t[after][0] - t_loss <= 0.05 + 0.004, f"damped {t[after][0] - t_loss:.3f} s after the fault\n{emu.summary}"
     assert damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # and damping from then on
     traj = read_log(str(out))  # the recording is closed and readable
     assert traj.duration > 1.0
