@@ -156,29 +156,40 @@ def test_a_shoved_robot_stops_pushing_recovers_the_stand_and_resumes():
     assert np.degrees(trunk_tilt(shoved.traj.base_quat[during][-1])) < 5  # level again when it resumed
 
 
-def test_a_recovery_samples_wide_refines_every_cycle_and_the_task_gets_its_own_noise_back(monkeypatch):
-    """While the reflex recovers (command phase ``recover``) the planner samples knot offsets at
-    ``recovery_noise`` around a fresh mean and refines each cycle (``refine_loops`` batches); the
-    first task cycle after it samples at ``noise`` again."""
+def spied_planner(monkeypatch, refine_loops: int):
+    """A T1 planner (200 samples, task σ 0.01/0.02/0.02, recovery σ 0.1/0.2/0.2 rad), its start state and
+    task command, and two lists each scoring batch appends to: the σ it sampled at (hip, thigh, calf of leg
+    FR) and the largest |offset| of the mean it sampled around."""
     from amhe_cli.control.closed_loop import make_planner
-    from amhe_cli.control.gait import GAITS
     from amhe_cli.control.planner import Planner
 
-    drawn = []
+    drawn, means = [], []
     score = Planner._score
 
     def spy(self, state, knots, ref, cmd):
-        drawn.append(np.std(knots[1:] - self.mean[None], axis=0).mean(axis=0)[:3])  # (hip, thigh, calf) of leg FR
+        drawn.append(np.std(knots[1:] - self.mean[None], axis=0).mean(axis=0)[:3])
+        means.append(np.abs(self.mean).max())
         return score(self, state, knots, ref, cmd)
 
     monkeypatch.setattr(Planner, "_score", spy)
     task = get_task("t1")
     settings = RunSettings(mode="true", threads=1, planner=PlannerSettings(
-        samples=200, horizon=6, knots=2, refine_loops=2, noise=(0.01, 0.02, 0.02), recovery_noise=(0.1, 0.2, 0.2)))
+        samples=200, horizon=6, knots=2, refine_loops=refine_loops, noise=(0.01, 0.02, 0.02),
+        recovery_noise=(0.1, 0.2, 0.2)))
     planner, _ = make_planner(task, settings, None, task.truth)
     plant = make_plant(task, settings.kp, settings.kd)
     state = planner.scene.full_state(plant.data.qpos[None], plant.data.qvel[None])[0]
     cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), 0.19)
+    return planner, state, cmd, drawn, means
+
+
+def test_a_recovery_samples_wide_refines_every_cycle_and_the_task_gets_its_own_noise_back(monkeypatch):
+    """While the reflex recovers (command phase ``recover``) the planner samples knot offsets at
+    ``recovery_noise`` around a fresh mean and refines each cycle (``refine_loops`` batches); the
+    first task cycle after it samples at ``noise`` again."""
+    from amhe_cli.control.gait import GAITS
+
+    planner, state, cmd, drawn, _ = spied_planner(monkeypatch, refine_loops=2)
     rec = recovery_command(cmd, np.zeros(2), 0.0)
     with planner:
         plans = [planner.plan(state, t, c, GAITS["stand"] if c is rec else None)
@@ -196,9 +207,7 @@ def test_a_steady_trunk_in_recovery_holds_the_stand_with_the_tasks_noise_from_th
     phase to ``hold``: the planner drops the recovery's wide σ and its drifted mean and samples the stand's
     reference at the task's ``noise``; a trunk tipping again (tilted, rolling, or every plan tilting) is
     caught with the wide σ again. ``hold_tilt`` 0 catches throughout."""
-    from amhe_cli.control.closed_loop import make_planner
     from amhe_cli.control.gait import GAITS
-    from amhe_cli.control.planner import Planner
 
     r = FallReflex()
     r.update(0.0, UP, tilted(0.4), STILL)
@@ -218,22 +227,7 @@ def test_a_steady_trunk_in_recovery_holds_the_stand_with_the_tasks_noise_from_th
     with pytest.raises(AmheError, match="hold_tilt"):
         ReflexSettings(hold_tilt=0.05).check()  # under exit_tilt: a settling trunk would be caught
 
-    drawn, means = [], []
-    score = Planner._score
-
-    def spy(self, state, knots, ref, cmd):
-        drawn.append(np.std(knots[1:] - self.mean[None], axis=0).mean(axis=0)[:3])
-        means.append(np.abs(self.mean).max())
-        return score(self, state, knots, ref, cmd)
-
-    monkeypatch.setattr(Planner, "_score", spy)
-    task = get_task("t1")
-    settings = RunSettings(mode="true", threads=1, planner=PlannerSettings(
-        samples=200, horizon=6, knots=2, refine_loops=1, noise=(0.01, 0.02, 0.02), recovery_noise=(0.1, 0.2, 0.2)))
-    planner, _ = make_planner(task, settings, None, task.truth)
-    plant = make_plant(task, settings.kp, settings.kd)
-    state = planner.scene.full_state(plant.data.qpos[None], plant.data.qvel[None])[0]
-    cmd = task.command(np.zeros(2), 0.0, np.array(task.box_start), 0.19)
+    planner, state, cmd, drawn, means = spied_planner(monkeypatch, refine_loops=1)
     rec, hold = recovery_command(cmd, np.zeros(2), 0.0), recovery_command(cmd, np.zeros(2), 0.0, hold=True)
     assert hold["phase"] == "hold" and rec["phase"] == "recover"
     with planner:
