@@ -17,8 +17,8 @@ import pytest
 from helpers import amhe, one_line_error
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.control.closed_loop import (MHE_DUTY, OWN_CORE_FROM, TASK_BOX_SIZE, EstimatorThread, RunSettings,
-                                          core_split, describe_split, make_plant, make_planner, run_task)
+from amhe_cli.control.closed_loop import (MHE_DUTY, OWN_CORE_FROM, RUN_PARAMS, TASK_BOX_SIZE, EstimatorThread,
+                                          RunSettings, core_split, describe_split, make_plant, make_planner, run_task)
 from amhe_cli.errors import AmheError
 from amhe_cli.control.evaluate import run_settings, summarise
 from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, STAND_HEIGHT
@@ -1012,6 +1012,56 @@ def test_evaluate_keeps_rows_as_they_finish_and_resume_runs_only_the_missing(tmp
     assert sorted(r["seed"] for r in rows) == [0, 1, 2, 3]
     assert rows[:len(first)] == first  # finished rows kept as they were, not run again
     assert json.loads(done.stdout)["rows"][0]["n"] == 4
+
+
+def test_evaluate_keeps_its_probe_belief_beside_the_rows_and_a_resumed_grid_starts_from_it(tmp_path, capsys,
+                                                                                          monkeypatch):
+    """The probe's belief goes to <out stem>.probe.belief.yaml; --resume loads it instead of probing again
+    (after a code change a new probe could differ, and one grid's rows would start from two beliefs); a
+    new grid without --force refuses to replace it. The probe and the runs are stand-ins here: the test is
+    the command's bookkeeping (the real grid is test_evaluate_keeps_rows_as_they_finish_...)."""
+    import amhe_cli.control.evaluate as ev
+    from amhe_cli.io.rows import read_rows
+    from amhe_cli.model.params import ParameterSpace
+    from amhe_cli.model.scene import Scene
+    probed, started = [], []
+
+    def probe(task, seed=0, threads=None, progress=None):
+        probed.append(task.name)
+        b = Belief.nominal(ParameterSpace(Scene(), free=RUN_PARAMS), {"source": "test probe"})
+        return Belief(**{**b.__dict__, "values": {**b.values, "box_mass": 4.321 + len(probed)}})
+
+    def grid(task_name, modes, seeds, belief, config, workers, duration, progress=None, done=(), **kw):
+        started.append(belief.values["box_mass"])
+        for s in range(seeds):
+            for m in modes:
+                if ("", m, s) not in done:
+                    progress({"task": task_name, "mode": m, "seed": s, "success": True, "e_g": 0.05, "J": 1.0,
+                              "t_exec": 9.0, "rmse": 0.05, "fell": False, "recoveries": 0, "control_hz": 9.0,
+                              "setting": ""})
+                    if len(started) == 1 and s == 1:
+                        raise KeyboardInterrupt  # the first grid cut off after two runs
+        return []
+    monkeypatch.setattr(ev, "probe_belief", probe)
+    monkeypatch.setattr(ev, "evaluate", grid)
+    out = tmp_path / "grid.csv"
+    args = ["evaluate", "--task", "t1", "--modes", "baseline", "--seeds", "4", "--out", out]
+    code, _, err = amhe(capsys, *args)
+    assert code == 130 and len(read_rows(out)) == 2, err
+    saved = tmp_path / "grid.probe.belief.yaml"
+    assert Belief.load(saved).values["box_mass"] == pytest.approx(5.321) and "saved to" in err
+    code, out_json, err = amhe(capsys, *args, "--resume", "--json")
+    assert code == 0, err
+    assert probed == ["t1"] and started == [pytest.approx(5.321)] * 2  # not probed again: the same belief
+    assert sorted(r["seed"] for r in read_rows(out)) == [0, 1, 2, 3]
+    assert json.loads(out_json)["probe_belief"] == str(saved)
+    before = saved.read_bytes()
+    out.unlink()  # a new grid under the same name must not replace the belief without --force
+    one_line_error(amhe(capsys, *args), "grid.probe.belief.yaml", "--force")
+    assert saved.read_bytes() == before and probed == ["t1"]
+    code, _, err = amhe(capsys, *args, "--force", "-q")
+    assert code == 0 and probed == ["t1", "t1"], err
+    assert Belief.load(saved).values["box_mass"] == pytest.approx(6.321)
 
 
 def _loopback_only(cmd: list) -> list:

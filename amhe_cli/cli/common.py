@@ -259,6 +259,11 @@ def fmt(v) -> str:
     return f"{v:.4g}"
 
 
+def belief_text(belief: Belief) -> str:
+    """The box a belief holds, for the console: ``box_mass 4.05, box_friction 0.3959``."""
+    return ", ".join(f"{k} {fmt(v)}" for k, v in belief.values.items() if k in ("box_mass", "box_friction"))
+
+
 def belief_from_result(result: IdentifyResult, problem: Problem, command: str, log: str) -> Belief:
     """A :class:`Belief` holding an identification result and its provenance."""
     return Belief.from_identify(

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import click
 
-from amhe_cli.cli.common import T5_WARNING, TASK_HELP, check_outputs, load_belief, progress_bar
+from amhe_cli.cli.common import T5_WARNING, TASK_HELP, belief_text, check_outputs, load_belief, progress_bar
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.identify import IdentifySettings
 from amhe_cli.io.rows import RowLog, read_rows
@@ -23,7 +23,8 @@ from amhe_cli.io.rows import RowLog, read_rows
                    "starting belief), adaptive (the belief re-estimated online by the MHE).")
 @click.option("--belief", default=None, type=click.Path(),
               help="Starting belief of baseline/adaptive (default: probe in the sim once, about a minute on "
-                   "2 cores, with progress).")
+                   "2 cores, with progress; the probe's belief is saved as <out stem>.probe.belief.yaml, and "
+                   "--resume starts from it).")
 @click.option("--config", default=None, type=click.Path(),
               help="Run config YAML, as for `amhe run --config` (planner, weights, mhe, mhe_params, kp, kd, "
                    "cycle, task).")
@@ -36,7 +37,7 @@ from amhe_cli.io.rows import RowLog, read_rows
 @click.option("--out", default=None, type=click.Path(),
               help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, recoveries, control_hz, "
                    "setting (default: evaluate_<task>.csv).")
-@click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl).")
+@click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl, and the probe's belief beside --out).")
 @click.option("--resume", is_flag=True,
               help="Keep the rows an existing --out already has (a grid cut off) and run only the missing ones.")
 @click.option("--jsonl", default=None, type=click.Path(),
@@ -88,6 +89,9 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
     if resume and force:
         raise AmheError("--resume keeps the rows --out has and --force discards them: give one of them")
     out_path = Path(out or f"evaluate_{task.name}.csv")
+    probing = belief is None and bool(set(mode_list) - {"true"})
+    # the probe's belief is kept beside the rows, so that a resumed grid starts every run from the same one
+    probe_path = out_path.with_name(out_path.stem + ".probe.belief.yaml") if probing else None
     kept: list[dict] = []
     if resume and out_path.exists():
         kept = [r for r in read_rows(out_path)
@@ -97,16 +101,25 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
             raise AmheError(f"--resume: {out_path} holds rows of task {', '.join(sorted(other))}, not {task.name}")
         (jsonl_path,) = check_outputs(True, ("--jsonl", jsonl)) if jsonl else (None,)
         (plot_path,) = check_outputs(True, ("--plot", plot))  # redrawn from the resumed rows
+        if probe_path is not None and probe_path.exists():
+            belief = str(probe_path)  # the cut-off grid's own starting belief
+        else:
+            (probe_path,) = check_outputs(True, ("--out", probe_path))
     else:
-        out_path, jsonl_path, plot_path = check_outputs(force, ("--out", out_path), ("--jsonl", jsonl), ("--plot", plot))
+        out_path, jsonl_path, plot_path, probe_path = check_outputs(
+            force, ("--out", out_path), ("--jsonl", jsonl), ("--plot", plot), ("--out", probe_path))
         for p in (out_path, jsonl_path):
             if p is not None and p.exists():
                 p.unlink()  # --force: start the grid anew
     if task.name == "t5":
         click.echo(f"amhe: warning: {T5_WARNING}", err=True)
     start = load_belief(belief)
-    if start is None and set(mode_list) - {"true"}:
-        if not (quiet or as_json):
+    talk = not (quiet or as_json)
+    if start is not None and probing and talk:
+        click.echo(f"--resume: starting belief from {probe_path}, the probe this grid's first runs started from "
+                   f"({belief_text(start)})", err=True)
+    if start is None and probing:
+        if talk:
             click.echo("no --belief: probing in the sim once for the baseline/adaptive starting belief "
                        "(the lunge probe, then identify: about a minute on 2 cores)", err=True)
         pbar = progress_bar(IdentifySettings.max_gen, "probe+identify", quiet or as_json)
@@ -114,9 +127,13 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
             start = probe_belief(task, seed=0, progress=lambda g, b: pbar.update(g - pbar.n))
         finally:
             pbar.close()
+        start.save(probe_path, force=True)  # claimed above (check_outputs)
+        if talk:
+            click.echo(f"starting belief: {belief_text(start)}; saved to {probe_path} (--resume starts from it; "
+                       f"`amhe run --belief {probe_path}` too)", err=True)
     done = {(r["setting"], r["mode"], r["seed"]) for r in kept}
     total = seeds * len(mode_list) * len(labels)
-    if kept and not (quiet or as_json):
+    if kept and talk:
         click.echo(f"--resume: {len(done)} of {total} runs already in {out_path}; running the other "
                    f"{total - len(done)}", err=True)
     rows = list(kept)
@@ -148,7 +165,8 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
         plot_ablation(plot_path, table, swept, {k: default_setting(task.name, cfg, k) for k, _ in swept}, mode_list)
     if as_json:
         click.echo(json.dumps({"task": task.name, "seeds": seeds, "rows": table, "csv": str(out_path),
-                               **({"plot": str(plot_path)} if plot_path else {})}))
+                               **({"plot": str(plot_path)} if plot_path else {}),
+                               **({"probe_belief": str(probe_path)} if probe_path else {})}))
         return
     click.echo(f"{task.name}, {seeds} seed(s) per mode (mean ± std)")
     wide = max((len(label) for label in labels), default=0)
@@ -159,3 +177,4 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
         click.echo(f"{lead}{r['mode']:>10}  {r['S_R']:6.1f}  {r['falls']:5d}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
                    f"{r['J'][0]:7.2f} ± {r['J'][1]:5.2f}  {r['t_exec'][0]:7.1f} ± {r['t_exec'][1]:5.1f}")
     click.echo(f"per-run rows: {out_path}" + (f"; ablation figure: {plot_path}" if plot_path else ""))
+

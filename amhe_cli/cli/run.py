@@ -11,8 +11,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from amhe_cli.cli.common import (T5_WARNING, TASK_HELP, check_live, check_outputs, fmt, live_option, load_belief,
-                                 parse_xy, progress_bar, start_live, task_view_frames)
+from amhe_cli.cli.common import (T5_WARNING, TASK_HELP, belief_text, check_live, check_outputs, live_option,
+                                 load_belief, parse_xy, progress_bar, start_live, task_view_frames)
 from amhe_cli.control.closed_loop import MODES
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.identify import IdentifySettings
@@ -131,9 +131,8 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
                 bar.close()
             start.save(probe_path, force=force)
             if talk:
-                click.echo("starting belief: " + ", ".join(f"{k} {fmt(v)}" for k, v in start.values.items()
-                                                          if k in ("box_mass", "box_friction"))
-                           + f"; saved to {probe_path} (next time: --belief {probe_path})", err=True)
+                click.echo(f"starting belief: {belief_text(start)}; saved to {probe_path} (next time: --belief "
+                           f"{probe_path})", err=True)
         bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
         try:
             result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant,
@@ -233,8 +232,7 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     if start is None:
         start = Belief.nominal(ParameterSpace(scene, free=RUN_PARAMS), {"source": "nominal prior (no --belief)"})
         if not quiet:
-            click.echo("no --belief: starting from the nominal prior (" + ", ".join(
-                f"{k} {fmt(v)}" for k, v in start.values.items() if k in ("box_mass", "box_friction")) + ")", err=True)
+            click.echo(f"no --belief: starting from the nominal prior ({belief_text(start)})", err=True)
     split = describe_split(settings, clocked=True)  # a split that leaves the planner nothing stops before the link
     go1 = Go1Settings(robot=parse_address(robot, 8007), local_port=local_port, mocap=mocap, base_body=base_body,
                       box_body=box_body, arm=arm, kp=settings.kp, kd=settings.kd,
