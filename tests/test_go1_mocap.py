@@ -306,3 +306,57 @@ def test_motioncapture_mock_backend():
     with pytest.raises(AmheError, match="unknown motion capture kind"):
         MotionCaptureSource("phasespace", "host")
     assert mocap.MOCAP_KINDS[-1] == "mock"
+
+
+# -- how late motion capture arrives (amhe_cli/plants/go1/latency.py) -----------------------------------------
+
+def _trotting_attitude(t: np.ndarray, yaw_zero: float = 0.0, tilt: float = 0.0) -> np.ndarray:
+    """(N, 4) w, x, y, z of a trunk rocking as a trot rocks it (1.35 Hz and harmonics, about a degree), turning
+    at 0.3 rad/s; ``yaw_zero`` and ``tilt`` (a marker set's roll) are what a second sensor may add."""
+    from scipy.spatial.transform import Rotation
+    roll = np.radians(1.0) * np.sin(2 * np.pi * 1.35 * t) + np.radians(0.4) * np.sin(2 * np.pi * 2.7 * t + 1) + tilt
+    pitch = np.radians(0.8) * np.sin(2 * np.pi * 2.7 * t + 0.3) + np.radians(0.3) * np.sin(2 * np.pi * 5.4 * t)
+    xyzw = Rotation.from_euler("ZYX", np.stack([0.3 * t + yaw_zero, pitch, roll], axis=-1)).as_quat()
+    return np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1)
+
+
+def _feed(est, t_imu, q_imu, t_mocap, q_mocap):
+    """Both streams into ``est`` in arrival order, updating as a planner would; returns ``est``."""
+    events = sorted([(t, 0, i) for i, t in enumerate(t_imu)] + [(t, 1, i) for i, t in enumerate(t_mocap)])
+    for t, which, i in events:
+        if which:
+            est.add_mocap(t, q_mocap[i])
+        else:
+            est.add_imu(t, q_imu[i])
+        est.update(t)
+    return est
+
+
+@pytest.mark.parametrize("late", [0.003, 0.017, 0.045])
+def test_mocap_latency_is_read_against_the_imu_through_noise_a_yaw_zero_and_tilted_markers(late):
+    from amhe_cli.plants.go1.latency import MocapLatency
+    rng = np.random.default_rng(3)
+    t_imu, t_cap = np.arange(0, 10, 0.002), np.arange(0, 10, 1 / 120)
+    q_cap = _trotting_attitude(t_cap, yaw_zero=1.0, tilt=np.radians(2))  # captured at t_cap, arrives `late` later
+    noise = rng.normal(0, np.radians(0.2), (len(t_cap), 3))  # the emulator's default: 0.2° per axis
+    from scipy.spatial.transform import Rotation
+    noisy = Rotation.from_quat(np.roll(q_cap, -1, axis=1)) * Rotation.from_rotvec(noise)
+    q_cap = np.roll(noisy.as_quat(), 1, axis=1)
+    est = _feed(MocapLatency(), t_imu, _trotting_attitude(t_imu), t_cap + late, q_cap)
+    assert len(est.estimates) >= 5
+    assert est.latency == pytest.approx(late, abs=0.001)
+
+
+def test_a_still_trunk_gives_no_latency_and_bad_settings_are_refused():
+    from amhe_cli.plants.go1.latency import MocapLatency, parse_mocap_latency
+    t = np.arange(0, 8, 0.002)
+    still = np.tile(IDENTITY, (len(t), 1))
+    est = _feed(MocapLatency(), t, still, t[::4] + 0.01, still[::4])
+    assert est.latency is None and est.estimates == []  # nothing moved: no timing to read
+    with pytest.raises(ValueError):
+        MocapLatency(span=0.05, max_lag=0.08)
+    assert parse_mocap_latency("auto") is None and parse_mocap_latency(None) is None
+    assert parse_mocap_latency(0.012) == 0.012
+    for bad in (-0.01, 0.9, "12 ms", True):
+        with pytest.raises(AmheError, match="mocap_latency"):
+            parse_mocap_latency(bad)

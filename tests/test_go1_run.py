@@ -289,3 +289,35 @@ def test_no_robot_is_a_one_line_error(tmp_path):
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "no valid LowState from 127.0.0.1" in errors[0]
     assert not (tmp_path / "x.mcap").exists()
+
+
+def test_late_motion_capture_is_measured_against_the_imu_and_said(emulator, tmp_path):
+    """The emulator's poses 25 ms late: the client reads that lateness from the trunk's attitude (IMU against
+    motion capture) while it walks, says it in the run's log and keeps it with the recording, whose poses
+    (as the MHE's window) it dates that much earlier."""
+    for emu, where in stall_retries(emulator, tmp_path, "--pose-latency", "0.025"):
+        proc, out = run_client(emu, where, "--arm", "--duration", "8")
+        emu.stop()
+        if "no valid robot state" not in proc.stderr:
+            break
+        assert_stalled(emu, "the run stopped", proc.stderr)
+    assert proc.returncode == 0, proc.stderr
+    said = [float(m.group(1)) for m in re.finditer(r"motion capture arrives ([0-9.]+) ms late", proc.stderr)]
+    assert said, proc.stderr
+    assert said[-1] == pytest.approx(25.0, abs=6.0), proc.stderr  # the relay's 2 ms tick and a loaded link
+    from mcap.reader import make_reader
+    with open(out, "rb") as fh:
+        run_meta = next(m.metadata for m in make_reader(fh).iter_metadata() if m.name == "amhe_run")
+    assert float(run_meta["mocap_latency"]) == pytest.approx(25e-3, abs=6e-3)
+
+
+def test_a_bad_mocap_latency_is_a_one_line_error_before_any_link(tmp_path):
+    cfg = tmp_path / "late.yaml"
+    cfg.write_text("mocap_latency: 12 ms\n")
+    proc = subprocess.run(AMHE + ["run", "--target", "go1", "--robot", f"127.0.0.1:{free_port()}", "--local-port", "0",
+                                  "--mocap", f"udp:127.0.0.1:{free_port()}", "--config", str(cfg),
+                                  "--out", str(tmp_path / "x.mcap")], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(errors) == 1 and "mocap_latency '12 ms'" in errors[0] and "auto" in errors[0], proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "x.mcap").exists()

@@ -224,6 +224,7 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     from amhe_cli.io.quat import quat_to_yaw
     from amhe_cli.model.params import ParameterSpace
     from amhe_cli.model.scene import Scene
+    from amhe_cli.plants.go1.latency import parse_mocap_latency
     from amhe_cli.plants.go1.link import parse_address
     from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
     from amhe_cli.plants.go1.safety import SafetySettings
@@ -236,7 +237,8 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     split = describe_split(settings, clocked=True)  # a split that leaves the planner nothing stops before the link
     go1 = Go1Settings(robot=parse_address(robot, 8007), local_port=local_port, mocap=mocap, base_body=base_body,
                       box_body=box_body, arm=arm, kp=settings.kp, kd=settings.kd,
-                      safety=SafetySettings.from_dict(cfg.get("safety")))
+                      safety=SafetySettings.from_dict(cfg.get("safety")),
+                      mocap_latency=parse_mocap_latency(cfg.get("mocap_latency", "auto")))
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     plant = Go1Plant(scene, go1)
     if not quiet:

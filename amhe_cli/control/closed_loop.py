@@ -728,6 +728,8 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
     }
     if result.traj.meta.get("monotonic_t0") is not None:  # a robot's run: its t = 0 on the machine's clock
         meta["amhe_run"]["monotonic_t0"] = f"{result.traj.meta['monotonic_t0']:.6f}"
+    if result.traj.meta.get("mocap_latency") is not None:  # and how late its motion capture came, as taken
+        meta["amhe_run"]["mocap_latency"] = f"{result.traj.meta['mocap_latency']:.6f}"
     if truth is not None:
         meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
     extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]

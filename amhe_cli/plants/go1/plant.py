@@ -34,6 +34,7 @@ from amhe_cli.io.trajectory import Trajectory
 from amhe_cli.io.unpack import _Series
 from amhe_cli.model.scene import Scene
 from amhe_cli.plants.base import Measurement, Plant, PlantFailure
+from amhe_cli.plants.go1.latency import MocapLatency
 from amhe_cli.plants.go1.link import LowLevelLink
 from amhe_cli.plants.go1.protocol import LOCAL_PORT, ROBOT_ADDRESS
 from amhe_cli.plants.go1.relay import Relay
@@ -43,6 +44,9 @@ from amhe_cli.plants.go1.state import StateEstimator
 #: Labels of the raw IMU stream recorded beside the trajectory (``/go1/imu``).
 IMU_LABELS = ("qw", "qx", "qy", "qz", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 FOOT_LABELS = ("FR", "FL", "RR", "RL")
+#: A measured motion-capture lateness is said in the run's log after this many estimates, and again when it
+#: moves by more than ``LATENCY_NEWS`` [s].
+LATENCY_SAY_AFTER, LATENCY_NEWS = 3, 0.002
 
 
 @dataclass
@@ -61,6 +65,10 @@ class Go1Settings:
         safety: :class:`~amhe_cli.plants.go1.safety.SafetySettings`.
         start_timeout: how long to wait for the state stream and the poses [s].
         planner_period: expected planner cycle [s] (stale-plan watchdog).
+        mocap_latency: how late poses arrive [s], taken off their arrival time in the MHE's window and
+            the recording (not in the planner's state, which carries poses forward from their arrival:
+            docs/evaluation.md#late-motion-capture); None: measured against the IMU as the run goes
+            (:class:`~amhe_cli.plants.go1.latency.MocapLatency`; 0 until the trunk has moved).
     """
 
     robot: tuple = ROBOT_ADDRESS
@@ -74,6 +82,7 @@ class Go1Settings:
     safety: SafetySettings = field(default_factory=SafetySettings)
     start_timeout: float = 3.0
     planner_period: float = 0.3
+    mocap_latency: float | None = None
 
 
 class Go1Plant(Plant):
@@ -104,6 +113,10 @@ class Go1Plant(Plant):
             self.link.close()
             raise
         self.estimator = StateEstimator(scene)
+        self.pose_latency = s.mocap_latency or 0.0  # [s]: what the MHE's window and the recording take off
+        self.latency = MocapLatency() if s.mocap_latency is None else None
+        self._latency_said: float | None = None
+        self._latency_seq = None
         self.safety = SafetyLayer(s.safety)
         self.relay = Relay(self.link, self.safety, s.kp, s.kd, dry_run=not s.arm, planner_period=s.planner_period,
                            on_tick=self._on_tick)
@@ -159,6 +172,12 @@ class Go1Plant(Plant):
             if state is not None:
                 self.estimator.update_state(now, state)
             self.estimator.update_poses(base, box)
+            if self.latency is not None:  # the ramp to the stand moves the trunk too: its timing counts
+                if state is not None:
+                    self.latency.add_imu(now, state.quaternion)
+                if base is not None and base.seq != self._latency_seq:
+                    self.latency.add_mocap(base.received, base.quat)
+                    self._latency_seq = base.seq
             if self._t0 is None or now < self._t0:
                 return  # the start waits for fresh poses itself: its ticks before them are not the run's news
             if fresh != self._mocap_was_ok:
@@ -192,6 +211,8 @@ class Go1Plant(Plant):
             raise PlantFailure(self.relay.reason or "the relay stopped")
         s = self.settings
         now = time.monotonic()
+        if self.latency is not None:
+            self._update_latency(now)
         with self._lock:
             qpos, qvel = self.estimator.estimate(now)
             t0 = self._t0 if self._t0 is not None else now
@@ -200,6 +221,20 @@ class Go1Plant(Plant):
         self._measured_at = now
         return Measurement(t=now - t0, qpos=qpos, qvel=qvel, ages=ages,
                            box_fresh=max(ages["base"], ages["box"]) <= s.safety.mocap_timeout)
+
+    def _update_latency(self, now: float) -> None:
+        """The planner thread's share of :class:`MocapLatency`: an estimate once a second, said when it moves."""
+        lat = self.latency.update(now)
+        if lat is None:
+            return
+        with self._lock:
+            self.pose_latency = lat
+            if len(self.latency.estimates) < LATENCY_SAY_AFTER:
+                return  # taken at once, said once a few spans agree
+            if self._latency_said is None or abs(lat - self._latency_said) > LATENCY_NEWS:
+                self._latency_said = lat
+                self._messages.append(f"motion capture arrives {lat * 1e3:.1f} ms late (read against the IMU's "
+                                      "attitude): the MHE and the recording date its poses that much earlier")
 
     def execute(self, controls: np.ndarray, dt: float, compute_time: float, lead: float = 0.0) -> list:
         """Hand the plan to the relay, row 0 due ``lead`` after the last :meth:`measure`; returns at once (no events)."""
@@ -304,9 +339,12 @@ class Go1Plant(Plant):
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
             tau = np.array(self._rec["tau"][k:]).reshape(len(t), 12)
-            # the mocap samples from just before the window on (the MHE asks for the last second)
+            # the mocap samples from just before the window on (the MHE asks for the last second), each at
+            # its arrival less the lateness of motion capture: when it was captured, on this machine's clock
             t_from = t[0] if len(t) else 0.0
-            raw = {key: v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]
+            late = self.pose_latency
+            raw = {key: [(r[0] - late, *r[1:])
+                         for r in v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]]
                    for key, v in self._raw.items()}
         sc, dt = self.scene, self.record_dt
         if len(t) == 0:
@@ -339,7 +377,7 @@ class Go1Plant(Plant):
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
                   "mocap": self.settings.mocap, "armed": self.settings.arm, "scene": self.scene.config.to_dict(),
                   # time 0 on this machine's monotonic clock: aligns the run with an emulator's event lines
-                  "monotonic_t0": self._t0, "warnings": []},
+                  "monotonic_t0": self._t0, "mocap_latency": late, "warnings": []},
         ), raw
 
     def extras(self) -> dict:
