@@ -37,7 +37,8 @@ from amhe_cli.io.rows import RowLog, read_rows
 @click.option("--out", default=None, type=click.Path(),
               help="CSV of per-run rows: task, mode, seed, success, e_g, J, t_exec, rmse, fell, recoveries, control_hz, "
                    "setting (default: evaluate_<task>.csv).")
-@click.option("--force", is_flag=True, help="Overwrite an existing --out file (and --jsonl, and the probe's belief beside --out).")
+@click.option("--force", is_flag=True,
+              help="Overwrite an existing --out file (and --jsonl, and the probe's belief beside --out).")
 @click.option("--resume", is_flag=True,
               help="Keep the rows an existing --out already has (a grid cut off) and run only the missing ones.")
 @click.option("--jsonl", default=None, type=click.Path(),
@@ -177,4 +178,3 @@ def evaluate_cmd(task_name, seeds, modes, belief, config, duration, workers, ray
         click.echo(f"{lead}{r['mode']:>10}  {r['S_R']:6.1f}  {r['falls']:5d}  {r['e_g'][0]:7.3f} ± {r['e_g'][1]:5.3f}  "
                    f"{r['J'][0]:7.2f} ± {r['J'][1]:5.2f}  {r['t_exec'][0]:7.1f} ± {r['t_exec'][1]:5.1f}")
     click.echo(f"per-run rows: {out_path}" + (f"; ablation figure: {plot_path}" if plot_path else ""))
-

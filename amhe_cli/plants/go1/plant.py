@@ -93,6 +93,10 @@ class Go1Plant(Plant):
         settings: :class:`Go1Settings`.
         link: an open link (default: a :class:`LowLevelLink` to ``settings.robot``).
         poses: a started pose source (default: :func:`open_pose_source` of ``settings.mocap``).
+    Attributes:
+        pose_latency: how late motion capture arrives [s], as :meth:`trajectory` and the recording take it
+            (``settings.mocap_latency``, or :attr:`latency`'s measure; 0 until it has one).
+        latency: the :class:`~amhe_cli.plants.go1.latency.MocapLatency` measuring it, or None where fixed.
     Raises:
         AmheError: the link or the pose source cannot be opened.
     """
@@ -281,6 +285,8 @@ class Go1Plant(Plant):
         0.053 / 0.125 → 0.061 / 0.101 (there the MHE's own noise is the limit,
         as in ``mhe-replay``). Joints, the trunk's orientation and velocities
         are the estimator's, interpolated linearly; joint targets are held.
+        Poses are dated at their arrival less :attr:`pose_latency` (motion
+        capture's lateness), and the trajectory ends at the last pose captured.
         """
         traj, raw = self._resampled(last)
         if not len(traj):
@@ -301,7 +307,11 @@ class Go1Plant(Plant):
                 traj.box_quat, traj.box_linvel, traj.box_angvel = pose["quat"], pose["linvel"], pose["angvel"]
             streams[role] = stream_report(series)
         traj.meta["sensors"] = {"streams": streams}
-        return traj
+        # up to the last pose captured: past it the poses would be held, a box and a trunk that stop dead
+        # for the lateness of motion capture plus the last sample's age
+        captured = [raw[role][-1][0] for role in ("base", "box") if raw[role]]
+        keep = int(np.searchsorted(traj.t, min(captured), side="right")) if captured else len(traj)
+        return traj.slice(0, max(keep, 1)) if keep < len(traj) else traj
 
     def recording(self) -> Trajectory:
         """The recording as a log of these streams would hold it: the box pose only where a mocap sample
