@@ -30,7 +30,7 @@ off and ``mhe_update_s`` their median wall time [s]), then one row per (task, mo
   the fixed belief's error against the changed world.
 
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
-                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--pose-latency 0.003] [--threads 3]
+                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--pose-latency 0.02] [--threads 3]
                                            [--label TEXT]   # tags the rows: --table keeps labels apart
     python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
 
@@ -133,7 +133,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     emu = subprocess.Popen(pin_emu + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
                                          f"127.0.0.1:{pose}", "--duration", str(args.duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise,
-                                         "--pose-latency", str(args.pose_latency)],
+                                         *(["--pose-latency", str(args.pose_latency)]
+                                           if args.pose_latency is not None else [])],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: Queue = Queue()
     reader = threading.Thread(target=lambda: [lines.put(x) for x in emu.stdout], daemon=True)
@@ -265,7 +266,8 @@ def main() -> None:
                          "client's CPUs, which gives the adaptive MHE one of 4): e.g. a baseline on 3 of 4 "
                          "plans at adaptive's rate")
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
-    ap.add_argument("--pose-latency", type=float, default=0.003, help="how late the emulator's poses arrive [s]")
+    ap.add_argument("--pose-latency", type=float, default=None,
+                    help="how late the emulator's poses arrive [s] (default: the emulator's own, 3 ms)")
     ap.add_argument("--label", default=None,
                     help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
                          "rows with different labels apart")

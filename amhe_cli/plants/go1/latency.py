@@ -63,17 +63,20 @@ def parse_mocap_latency(value) -> float | None:
     return float(value)
 
 
-def up_in_body(quat: np.ndarray) -> np.ndarray:
-    """(..., 2) x and y of the world's up direction in the body frame of attitude ``quat`` (..., 4) (w, x, y, z).
+def up_in_body(quat) -> tuple[float, float] | None:
+    """x and y of the world's up direction in the body frame of attitude ``quat`` (4,) (w, x, y, z), or None
+    for a zero quaternion.
 
     About (−pitch, roll) [rad] for small angles; unchanged by any turn about the world's z, so two
-    sensors whose yaw zeros differ (an IMU and motion capture) give the same values.
+    sensors whose yaw zeros differ (an IMU and motion capture) give the same values. Plain floats: the
+    relay thread calls it every 2 ms, where numpy's per-call overhead would be most of the cost.
     """
-    q = np.asarray(quat, dtype=float)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    w, x, y, z = (float(v) for v in quat)
     n2 = w * w + x * x + y * y + z * z
+    if not n2 > 0:
+        return None
     # third row of the rotation matrix (body -> world), i.e. the world z axis in body coordinates
-    return np.stack([2 * (x * z - w * y), 2 * (y * z + w * x)], axis=-1) / n2[..., None]
+    return 2 * (x * z - w * y) / n2, 2 * (y * z + w * x) / n2
 
 
 class MocapLatency:
@@ -124,12 +127,11 @@ class MocapLatency:
         self._add(1, self._mocap, t, quat)
 
     def _add(self, which: int, buf: np.ndarray, t: float, quat) -> None:
-        w, x, y, z = (float(v) for v in quat)
-        n2 = w * w + x * x + y * y + z * z
-        if not n2 > 0:
+        up = up_in_body(quat)
+        if up is None:
             return
         with self._lock:
-            buf[self._n[which] % len(buf)] = (t, 2 * (x * z - w * y) / n2, 2 * (y * z + w * x) / n2)
+            buf[self._n[which] % len(buf)] = (t, *up)
             self._n[which] += 1
 
     def _rows(self, which: int, buf: np.ndarray) -> np.ndarray:
