@@ -323,6 +323,41 @@ def test_a_robot_past_the_box_walks_back_behind_it():
     assert cmd["phase"] == "approach" and cmd["speed"] > 0 and cmd["waypoint"][1] == pytest.approx(box[1])
 
 
+def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
+    """Both emulated falls of stops 50 and 51 turned on the spot 0.20–0.22 m from the box's face after losing
+    it and swept a leg into the box. Nearer than TURN_CLEARANCE the approach steps along the heading away
+    from the box (backward where the box is ahead, forward where it is behind), without turning; clear of
+    it, it turns on the spot as before."""
+    from amhe_cli.control.tasks import CLEAR_SPEED, TURN_CLEARANCE, box_clearance
+    task = get_task("t4")
+    box = np.array([1.9, 0.0])
+    # slid off the box's side, the box 0.40 m to the left and a little ahead (as in both falls)
+    base = box + [-0.10, -0.40]
+    assert box_clearance(base, box, 0.0, HALF_DEPTH, HALF_DEPTH) == pytest.approx(0.40 - HALF_DEPTH)
+    cmd = task.command(base, 0.0, box, HALF_DEPTH)
+    assert cmd["phase"] == "approach" and cmd.get("clearing")
+    assert cmd["speed"] == -CLEAR_SPEED and cmd["omega"] == 0.0 and cmd["yaw"] == 0.0
+    assert cmd["box_speed"] == 0.0
+    ref = task.waypoint_reference(cmd, np.array([0.0, 1.0, 100.0]))  # its reference backs away at that speed
+    np.testing.assert_allclose(ref[1], base - [CLEAR_SPEED, 0.0], atol=1e-12)
+    np.testing.assert_allclose(ref[2], base - [TURN_CLEARANCE, 0.0], atol=1e-12)
+    # the box beside and a little behind: forward
+    fwd = task.command(box + [0.10, -0.40], 0.0, box, HALF_DEPTH)
+    assert fwd.get("clearing") and fwd["speed"] == CLEAR_SPEED and fwd["omega"] == 0.0
+    # a turned box counts by its own footprint: its corner nearer than its face would be
+    assert box_clearance(box + [0.0, 0.45], box, np.pi / 4, HALF_DEPTH, HALF_DEPTH) == \
+        pytest.approx(0.45 - HALF_DEPTH * np.sqrt(2))
+    assert box_clearance(box, box, 0.3, HALF_DEPTH, HALF_DEPTH) == 0.0
+    # clear of the box: turn on the spot, as before
+    far = task.command(box + [-0.10, -0.40 - TURN_CLEARANCE], 0.0, box, HALF_DEPTH)
+    assert far["phase"] == "approach" and not far.get("clearing")
+    assert far["speed"] == 0.0 and abs(far["omega"]) > 0
+    # facing its waypoint it walks on, near the box or not
+    facing = float(np.arctan2(*(far["waypoint"] - base)[::-1]))
+    walk = task.command(base, facing, box, HALF_DEPTH)
+    assert not walk.get("clearing") and walk["speed"] > 0
+
+
 def test_t1_speed_command_slows_to_its_floor_at_goal_and_a_bad_floor_is_refused():
     task = get_task("t1")
     goal = np.asarray(task.goal)

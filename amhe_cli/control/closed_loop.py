@@ -540,6 +540,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         next_update = s.mhe.window
         pending = False
         phase = None
+        clearing = False  # the approach's step away from the box before it turns (Task.command)
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
@@ -563,6 +564,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 elif phase is not None and cmd["phase"] == "push":
                     note(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
+            if cmd.get("clearing", False) != clearing:
+                clearing = cmd.get("clearing", False)
+                if clearing:
+                    note(f"t={t:.2f} s: too near the box to turn on the spot, stepping clear of it first")
             gait = stand if reflex.active else planner.gait
             state = pscene.full_state(q[None], v[None])[0]
             lead = 0.0

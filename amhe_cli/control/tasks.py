@@ -60,6 +60,16 @@ APPROACH_MARGIN = 0.15
 KEEP_OUT = 0.52
 #: Approach phase: heading error [rad] above which the robot turns on the spot.
 TURN_IN_PLACE = 0.6
+#: Approach phase: the trunk's origin turns on the spot only this far from the box [m] (from the box's
+#: surface, in the floor plane): the Go1's feet stand 0.23 m from its origin and its thighs and knees sweep a
+#: little more. Nearer, it first steps along its heading away from the box (:data:`CLEAR_SPEED`). Both falls
+#: of the emulated Go1 on the final code of stop 50 and 51 turned on the spot 0.20–0.22 m from the box's face
+#: after losing it: the rear or front leg swept into the box, the trunk rolled or pitched past 25° and fell
+#: (docs/fall_prevention.md, "Turning beside the box").
+TURN_CLEARANCE = 0.30
+#: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
+#: heading (backward where the box is ahead): the trot has no sidestep.
+CLEAR_SPEED = 0.15
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
 BASE_HEIGHT = 0.265
 #: One-leg push (T5): the free foot's centre this far below the trunk origin [m] (about 7 cm above the
@@ -274,7 +284,10 @@ class Task:
           back). The robot walks to a pre-push point :data:`APPROACH_MARGIN`
           behind the pushing pose — around the box's side first if the box is in
           the way — turning on the spot while the heading error exceeds
-          :data:`TURN_IN_PLACE`; the box's reference holds still.
+          :data:`TURN_IN_PLACE`; the box's reference holds still. Nearer the box
+          than :data:`TURN_CLEARANCE` it does not turn but steps along its heading
+          away from the box first (``clearing``; the box's footprint taken as
+          ``half_depth`` × ``half_width`` along its own axes, turned by ``box_yaw``).
 
         The one-leg push (``push_side``, T5) keeps the robot where it stands and
         gives the free leg a **reach** (:meth:`reach`): to beside the box's face,
@@ -292,7 +305,8 @@ class Task:
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
             for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
-            of its reference, ``phase`` ``"push"`` or ``"approach"``, ``base`` (2,) the
+            of its reference, ``phase`` ``"push"`` or ``"approach"`` (with ``clearing`` True while it
+            steps away from the box before turning), ``base`` (2,) the
             trunk now (where :meth:`waypoint_reference` starts), ``base_yaw`` its heading now [rad]
             (where :meth:`heading_reference` starts); the one-leg
             push adds ``reach`` (see :meth:`reach`) and ``box_yaw`` (the box's yaw now, [rad]).
@@ -337,9 +351,16 @@ class Task:
         to_wp = waypoint - base_xy
         yaw = float(np.arctan2(to_wp[1], to_wp[0]))
         near = min(1.0, float(np.linalg.norm(to_wp)) / self.slow_radius)  # slowing down as at the goal
-        speed = 0.0 if abs(_yaw_error(yaw, base_yaw)) > TURN_IN_PLACE else self.speed * near
-        return {**out, "direction": d, "waypoint": waypoint, "yaw": yaw, "speed": speed,
-                "omega": _turn(yaw, base_yaw), "box_speed": 0.0, "phase": "approach"}
+        out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach"}
+        if abs(_yaw_error(yaw, base_yaw)) <= TURN_IN_PLACE:
+            return {**out, "waypoint": waypoint, "yaw": yaw, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
+        if box_clearance(base_xy, box_xy, box_yaw, half_depth, half_width) < TURN_CLEARANCE:
+            # too near to turn on the spot: step along the heading, away from the box, first
+            heading = np.array([np.cos(base_yaw), np.sin(base_yaw)])
+            away = -1.0 if float((box_xy - base_xy) @ heading) > 0 else 1.0
+            return {**out, "waypoint": base_xy + away * heading * TURN_CLEARANCE, "yaw": float(base_yaw),
+                    "speed": away * CLEAR_SPEED, "omega": 0.0, "clearing": True}
+        return {**out, "waypoint": waypoint, "yaw": yaw, "speed": 0.0, "omega": _turn(yaw, base_yaw)}
 
     def reach(self, t: float, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, box_yaw: float,
               direction: np.ndarray, half_x: float, half_y: float, speed: float) -> dict:
@@ -475,7 +496,7 @@ class Task:
         dist = float(np.linalg.norm(delta))
         if dist < 1e-9:
             return np.broadcast_to(goal, tau.shape[:-1] + (2,))
-        return start + delta / dist * np.minimum(cmd["speed"] * tau, dist)
+        return start + delta / dist * np.minimum(abs(cmd["speed"]) * tau, dist)
 
     def heading_reference(self, cmd: dict, tau: np.ndarray | float) -> np.ndarray | float:
         """(...) the heading [rad] the trunk should have ``tau`` [s] into the horizon: with a ``heading_rate``,
@@ -517,6 +538,17 @@ class Task:
     def terminal_cost(self, box_pos: np.ndarray, cmd: dict, tau: float) -> np.ndarray:
         """(...) extra cost of the box's position at the end of a horizon ``tau`` [s] long."""
         return self.weights.terminal * self._box_term(box_pos, cmd, tau)
+
+
+def box_clearance(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x: float,
+                  half_y: float) -> float:
+    """Distance [m] in the floor plane from ``point_xy`` (2,) to a box's footprint: the rectangle of half
+    extents ``half_x``, ``half_y`` [m] along the box's own axes, centred at ``box_xy`` (2,) and turned by
+    ``box_yaw`` [rad]; 0 inside it."""
+    c, s_ = np.cos(box_yaw), np.sin(box_yaw)
+    dx, dy = np.subtract(point_xy, box_xy)
+    local = np.array([c * dx + s_ * dy, -s_ * dx + c * dy])
+    return float(np.linalg.norm(np.maximum(np.abs(local) - [half_x, half_y], 0.0)))
 
 
 def _yaw_error(yaw: float, base_yaw: float) -> float:
