@@ -62,10 +62,10 @@ KEEP_OUT = 0.52
 TURN_IN_PLACE = 0.6
 #: Approach phase: the trunk's origin turns on the spot only this far from the box [m] (from the box's
 #: surface, in the floor plane): the Go1's feet stand 0.23 m from its origin and its thighs and knees sweep a
-#: little more. Nearer, it first steps along its heading away from the box (:data:`CLEAR_SPEED`). The three
-#: emulated falls since the lateness handling turned 0.11–0.22 m from the box's side: on the spot after
-#: losing the box, or "pushing" beside it 60–100° off the push direction; a leg swept into the box and the
-#: trunk rolled or pitched past 25° (docs/fall_prevention.md, "Turning beside the box").
+#: little more. Nearer, it first steps along its heading away from the box (:data:`CLEAR_SPEED`). Both falls
+#: of the emulated Go1 on the final code of stop 50 and 51 turned on the spot 0.20–0.22 m from the box's face
+#: after losing it: the rear or front leg swept into the box, the trunk rolled or pitched past 25° and fell
+#: (docs/fall_prevention.md, "Turning beside the box").
 TURN_CLEARANCE = 0.30
 #: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
 #: heading (backward where the box is ahead): the trot has no sidestep.
@@ -279,19 +279,15 @@ class Task:
           :data:`LINE_TOLERANCE` of the push line. The waypoint is the pushing
           pose on that line; the heading is ``d``, bent back toward the line by
           :data:`LINE_GAIN` per metre of offset (the trot has no sidestep, so the
-          robot corrects its offset by steering, as a line follower does). More
-          than :data:`TURN_IN_PLACE` off that heading it does not walk: it turns on
-          the spot, or steps clear of the box first (below).
+          robot corrects its offset by steering, as a line follower does).
         * **approach**: otherwise (it slid off the box, walked past it, or fell
           back). The robot walks to a pre-push point :data:`APPROACH_MARGIN`
           behind the pushing pose — around the box's side first if the box is in
           the way — turning on the spot while the heading error exceeds
-          :data:`TURN_IN_PLACE`; the box's reference holds still.
-
-        Wherever it would turn on the spot nearer the box than :data:`TURN_CLEARANCE`,
-        it steps along its heading away from the box first (``clearing``; the box's
-        footprint taken as ``half_depth`` × ``half_width`` along its own axes, turned
-        by ``box_yaw``); while it turns or steps clear the box's reference holds still.
+          :data:`TURN_IN_PLACE`; the box's reference holds still. Nearer the box
+          than :data:`TURN_CLEARANCE` it does not turn but steps along its heading
+          away from the box first (``clearing``; the box's footprint taken as
+          ``half_depth`` × ``half_width`` along its own axes, turned by ``box_yaw``).
 
         The one-leg push (``push_side``, T5) keeps the robot where it stands and
         gives the free leg a **reach** (:meth:`reach`): to beside the box's face,
@@ -343,11 +339,10 @@ class Task:
         reach = half_depth + HEAD_REACH
         push_yaw = float(np.arctan2(d[1], d[0]))
         behind = -(reach + PUSH_ZONE[1]) <= along <= -(half_depth + PUSH_ZONE[0])
-        out["direction"] = d
         if behind and abs(lateral) <= half_width + LINE_TOLERANCE:
             yaw = push_yaw - float(np.clip(LINE_GAIN * lateral, -MAX_LINE_BEND, MAX_LINE_BEND))
-            return self._walk_or_turn(out, box_xy - d * reach, yaw, self.speed * slow, base_xy, base_yaw, box_xy,
-                                      box_yaw, half_depth, half_width)
+            return {**out, "direction": d, "waypoint": box_xy - d * reach, "yaw": yaw,
+                    "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
         if along > -(half_depth + PUSH_ZONE[0]):
@@ -356,20 +351,11 @@ class Task:
         to_wp = waypoint - base_xy
         yaw = float(np.arctan2(to_wp[1], to_wp[0]))
         near = min(1.0, float(np.linalg.norm(to_wp)) / self.slow_radius)  # slowing down as at the goal
-        return self._walk_or_turn({**out, "box_speed": 0.0, "phase": "approach"}, waypoint, yaw, self.speed * near,
-                                  base_xy, base_yaw, box_xy, box_yaw, half_depth, half_width)
-
-    @staticmethod
-    def _walk_or_turn(out: dict, waypoint: np.ndarray, yaw: float, speed: float, base_xy: np.ndarray,
-                      base_yaw: float, box_xy: np.ndarray, box_yaw: float, half_x: float, half_y: float) -> dict:
-        """:meth:`command`'s walking targets toward ``waypoint`` facing ``yaw`` at ``speed``: walking (and
-        steering) while the heading error is within :data:`TURN_IN_PLACE`, else turning on the spot (the
-        box's reference held still) — or, nearer the box than :data:`TURN_CLEARANCE`, stepping along the
-        heading away from it first (``clearing``)."""
+        out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach"}
         if abs(_yaw_error(yaw, base_yaw)) <= TURN_IN_PLACE:
-            return {**out, "waypoint": waypoint, "yaw": yaw, "speed": speed, "omega": _turn(yaw, base_yaw)}
-        out = {**out, "box_speed": 0.0}
-        if box_clearance(base_xy, box_xy, box_yaw, half_x, half_y) < TURN_CLEARANCE:
+            return {**out, "waypoint": waypoint, "yaw": yaw, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
+        if box_clearance(base_xy, box_xy, box_yaw, half_depth, half_width) < TURN_CLEARANCE:
+            # too near to turn on the spot: step along the heading, away from the box, first
             heading = np.array([np.cos(base_yaw), np.sin(base_yaw)])
             away = -1.0 if float((box_xy - base_xy) @ heading) > 0 else 1.0
             return {**out, "waypoint": base_xy + away * heading * TURN_CLEARANCE, "yaw": float(base_yaw),
