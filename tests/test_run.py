@@ -324,14 +324,14 @@ def test_a_robot_past_the_box_walks_back_behind_it():
 
 
 def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
-    """Both emulated falls of stops 50 and 51 turned on the spot 0.20–0.22 m from the box's face after losing
-    it and swept a leg into the box. Nearer than TURN_CLEARANCE the approach steps along the heading away
+    """Two emulated falls (T3, stops 50 and 51) turned on the spot 0.22–0.24 m from the box's face after losing
+    it and met the box with a leg. Nearer than TURN_CLEARANCE the approach steps along the heading away
     from the box (backward where the box is ahead, forward where it is behind), without turning; clear of
     it, it turns on the spot as before."""
     from amhe_cli.control.tasks import CLEAR_SPEED, TURN_CLEARANCE, box_clearance
     task = get_task("t4")
     box = np.array([1.9, 0.0])
-    # slid off the box's side, the box 0.40 m to the left and a little ahead (as in both falls)
+    # slid off the box's side, the box 0.40 m to the left and a little ahead (as in the falls)
     base = box + [-0.10, -0.40]
     assert box_clearance(base, box, 0.0, HALF_DEPTH, HALF_DEPTH) == pytest.approx(0.40 - HALF_DEPTH)
     cmd = task.command(base, 0.0, box, HALF_DEPTH)

@@ -62,10 +62,10 @@ KEEP_OUT = 0.52
 TURN_IN_PLACE = 0.6
 #: Approach phase: the trunk's origin turns on the spot only this far from the box [m] (from the box's
 #: surface, in the floor plane): the Go1's feet stand 0.23 m from its origin and its thighs and knees sweep a
-#: little more. Nearer, it first steps along its heading away from the box (:data:`CLEAR_SPEED`). Both falls
-#: of the emulated Go1 on the final code of stop 50 and 51 turned on the spot 0.20–0.22 m from the box's face
-#: after losing it: the rear or front leg swept into the box, the trunk rolled or pitched past 25° and fell
-#: (docs/fall_prevention.md, "Turning beside the box").
+#: little more. Nearer, it first steps along its heading away from the box (:data:`CLEAR_SPEED`). Two emulated
+#: falls (T3, machines of stops 50 and 51) turned on the spot 0.22–0.24 m from the box's face after losing it:
+#: a leg met the box and the trunk rolled or pitched past 25° (docs/fall_prevention.md, "Turning beside the
+#: box"). Turning on the spot keeps the trunk's origin where it is, so a turn begun this far stays this far.
 TURN_CLEARANCE = 0.30
 #: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
 #: heading (backward where the box is ahead): the trot has no sidestep.
