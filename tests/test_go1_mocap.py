@@ -347,6 +347,33 @@ def test_mocap_latency_is_read_against_the_imu_through_noise_a_yaw_zero_and_tilt
     assert est.latency == pytest.approx(late, abs=0.001)
 
 
+def test_a_lateness_is_reported_only_once_its_spans_agree(monkeypatch):
+    """The first span of a run (the slow ramp to the stand) timed the emulator's 3 ms as 31.1 and 80.0 ms; the
+    median of the first two or three dated the MHE's poses 20–40 ms wrong. Now the median of the last five is
+    taken once three of them agree within 3 ms, and kept until they agree again."""
+    from amhe_cli.plants.go1.latency import MocapLatency
+    est = MocapLatency()
+    reads = iter([0.0311, 0.0056, 0.0050, 0.0050, 0.0052, 0.030, 0.031, 0.032, 0.0305])
+    monkeypatch.setattr(est, "measure", lambda imu, moc: next(reads))
+    got = [est.update(float(k)) for k in range(9)]
+    assert got[:3] == [None, None, None]  # one good read beside the bad one is not yet agreement
+    assert got[3] == pytest.approx(0.0053) and got[4] == pytest.approx(0.0052)
+    assert got[5] == got[6] == pytest.approx(0.0052)  # new reads elsewhere: the agreed lateness stands ...
+    # ... until three of the last five agree on the new one: a real change is taken
+    assert got[7] == pytest.approx(0.030) and got[8] == pytest.approx(0.0305)
+
+
+def test_a_lateness_beyond_the_range_is_not_read_as_its_end():
+    """Poses 0.12 s late against a 0.08 s range: the best lag sits at the range's end, no minimum inside
+    it, so no estimate (where the old code read 80 ms)."""
+    from amhe_cli.plants.go1.latency import MocapLatency
+    t_imu, t_cap = np.arange(0, 8, 0.002), np.arange(0, 8, 1 / 120)
+    est = _feed(MocapLatency(), t_imu, _trotting_attitude(t_imu), t_cap + 0.12, _trotting_attitude(t_cap))
+    assert est.latency is None and est.estimates == []
+    near = _feed(MocapLatency(), t_imu, _trotting_attitude(t_imu), t_cap + 0.07, _trotting_attitude(t_cap))
+    assert near.latency == pytest.approx(0.07, abs=0.001)  # inside the range it is read
+
+
 def test_a_still_trunk_gives_no_latency_and_bad_settings_are_refused():
     from amhe_cli.plants.go1.latency import MocapLatency, parse_mocap_latency
     t = np.arange(0, 8, 0.002)

@@ -21,8 +21,10 @@ trunk frame (:func:`up_in_body`), which does not depend on where either stream
 puts its yaw zero. A trotting trunk rocks by a degree or more at 1.3 Hz and its
 feet's impacts; a trunk that does not move (standing, lying) has no timing to
 read, so a span whose IMU attitude varies by less than ``min_motion`` gives no
-estimate. The lateness reported is the median of the last :data:`MEDIAN_OF`
-estimates; it covers the whole pipeline but the IMU's own link delay.
+estimate, nor does a span whose best lag is at either end of the range (no
+minimum inside it). The lateness reported is the median of the last
+:data:`MEDIAN_OF` estimates, once enough of them agree with it (:data:`AGREE`);
+it covers the whole pipeline but the IMU's own link delay.
 *Measured*: a synthetic trot through 0.2° noise, markers tilted 2° and a yaw
 zero 1 rad off, 3 / 17 / 45 ms late, read within 0.5 ms; ``amhe emulate go1
 --pose-latency`` 0.003 / 0.025 read 4.3 / 26.6 ms 2 s into a T1 run (the link
@@ -43,8 +45,13 @@ import numpy as np
 
 from amhe_cli.errors import AmheError
 
-#: Successive span estimates whose median is reported.
+#: Successive span estimates whose median is reported ...
 MEDIAN_OF = 5
+#: ... once at least ``AGREE[0]`` of them lie within ``AGREE[1]`` [s] of it. The first span of a run (the
+#: slow ramp to the stand) times the streams loosely: on the emulated Go1, 3 ms late, two runs' first
+#: estimates read 31.1 and 80.0 ms and every later one 3.6–5.6; a median of the first two or three dated the
+#: MHE's poses 20–40 ms wrong for seconds.
+AGREE = (3, 0.003)
 #: Largest fixed lateness a run config may give [s].
 MAX_FIXED = 0.5
 
@@ -94,8 +101,8 @@ class MocapLatency:
         min_motion: least standard deviation of the IMU's attitude over a span [rad] for an estimate.
 
     Attributes:
-        latency: the reported lateness [s] (median of the last :data:`MEDIAN_OF` estimates), or None
-            before the first.
+        latency: the reported lateness [s] (median of the last :data:`MEDIAN_OF` estimates, taken once
+            :data:`AGREE` holds and kept until it holds again), or None before.
         estimates: (time [s], span estimate [s]) of every estimate made.
 
     Raises:
@@ -148,11 +155,15 @@ class MocapLatency:
         lag = self.measure(imu, moc)
         if lag is not None:
             self.estimates.append((now, lag))
-            self.latency = float(np.median([e for _, e in self.estimates[-MEDIAN_OF:]]))
+            last = np.array([e for _, e in self.estimates[-MEDIAN_OF:]])
+            mid = float(np.median(last))
+            if np.count_nonzero(np.abs(last - mid) <= AGREE[1]) >= AGREE[0]:
+                self.latency = mid
         return self.latency
 
     def measure(self, imu: np.ndarray, moc: np.ndarray) -> float | None:
-        """The lag [s] of poses ``moc`` against IMU samples ``imu``, or None (too little motion or data).
+        """The lag [s] of poses ``moc`` against IMU samples ``imu``, or None (too little motion or data, or
+        the best lag at an end of ``[0, max_lag]``).
 
         Args:
             imu, moc: (N, 3) rows of (time [s], :func:`up_in_body` x, y), oldest first.
@@ -177,4 +188,4 @@ class MocapLatency:
             den = c0 - 2 * c1 + c2
             shift = 0.5 * (c0 - c2) / den if den > 0 else 0.0
             return float(lags[i] + np.clip(shift, -1, 1) * self.step)
-        return float(lags[i])
+        return None  # the best lag at an end of the range: no minimum inside it to read

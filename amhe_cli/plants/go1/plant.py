@@ -44,9 +44,9 @@ from amhe_cli.plants.go1.state import StateEstimator
 #: Labels of the raw IMU stream recorded beside the trajectory (``/go1/imu``).
 IMU_LABELS = ("qw", "qx", "qy", "qz", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 FOOT_LABELS = ("FR", "FL", "RR", "RL")
-#: A measured motion-capture lateness is said in the run's log after this many estimates, and again when it
-#: moves by more than ``LATENCY_NEWS`` [s].
-LATENCY_SAY_AFTER, LATENCY_NEWS = 3, 0.002
+#: A measured motion-capture lateness is said in the run's log once taken, and again when it moves by more
+#: than this [s].
+LATENCY_NEWS = 0.002
 
 
 @dataclass
@@ -68,7 +68,7 @@ class Go1Settings:
         mocap_latency: how late poses arrive [s], taken off their arrival time in the MHE's window and
             the recording (not in the planner's state, which carries poses forward from their arrival:
             docs/evaluation.md#late-motion-capture); None: measured against the IMU as the run goes
-            (:class:`~amhe_cli.plants.go1.latency.MocapLatency`; 0 until the trunk has moved).
+            (:class:`~amhe_cli.plants.go1.latency.MocapLatency`; 0 until its estimates agree).
     """
 
     robot: tuple = ROBOT_ADDRESS
@@ -232,9 +232,7 @@ class Go1Plant(Plant):
         if lat is None:
             return
         with self._lock:
-            self.pose_latency = lat
-            if len(self.latency.estimates) < LATENCY_SAY_AFTER:
-                return  # taken at once, said once a few spans agree
+            self.pose_latency = lat  # the estimator reports a lateness only once its spans agree
             if self._latency_said is None or abs(lat - self._latency_said) > LATENCY_NEWS:
                 self._latency_said = lat
                 self._messages.append(f"motion capture arrives {lat * 1e3:.1f} ms late (read against the IMU's "
