@@ -28,7 +28,8 @@ it covers the whole pipeline but the IMU's own link delay.
 *Measured*: a synthetic trot through 0.2° noise, markers tilted 2° and a yaw
 zero 1 rad off, 3 / 17 / 45 ms late, read within 0.5 ms; ``amhe emulate go1
 --pose-latency`` 0.003 / 0.025 read 4.3 / 26.6 ms 2 s into a T1 run (the link
-and the relay's 2 ms tick add the rest).
+and the relay's 2 ms tick add the rest); with :data:`AGREE` the first report
+comes 4–5 s in (5.0 ms at 3 ms late).
 
 The run's MHE window and its recording date each pose at its arrival less that
 lateness (:meth:`~amhe_cli.plants.go1.plant.Go1Plant.trajectory`); ``mocap_latency:
