@@ -22,6 +22,12 @@ emulated Go1's or a real robot's ``amhe run`` recording, which ends at its fall)
 that many seconds before its end, ``--seeds`` planner seeds each, no run of its own. A recovery that stays
 up here fell to what the wall clock adds (late plans, a state estimated from noisy motion capture).
 
+``--replay-log REC --tasks T --replay-from 4,3 --duration 6 --seeds 4`` runs the task's *own* loop (the
+planner as the run config sets it, the reflex, true parameters, any event of the recorded run already
+fired) from a recorded run's states that many seconds before its end, in lock-step: does the controller
+fall from there without the wall clock? Comparing versions (``PYTHONPATH`` at another checkout) on the
+same recorded states tries a change against the situation that broke a robot.
+
 Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``); ``--beliefs DIR``
 keeps the probed beliefs there, so a grid split over several calls (``--first-seed``) probes once.
 """
@@ -33,6 +39,7 @@ import json
 import os
 import sys
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +105,42 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0,
             "max_tilt_deg": round(float(np.degrees(tilt)), 1)}
 
 
+def replay(task_name: str, config: dict, traj, t0: float, duration: float, seed: int = 0) -> dict:
+    """Run the task's own loop (true mode: the planner as ``config`` sets it, the reflex) from the recorded
+    state at ``t0`` [s] for ``duration`` seconds of lock-step sim; the run's metrics and largest tilt.
+
+    The plant holds the task's truth with every event already due at ``t0`` applied (``traj``'s box
+    position for an event at a box position), and no later event.
+    """
+    task, s = run_settings(task_name, "true", config, seed=seed, threads=1, duration=duration)
+    i = int(np.argmin(np.abs(traj.t - t0)))
+    due = {e.param: e.value for e in task.events if e.due(float(traj.t[i]), float(traj.box_pos[i, 0]))}
+    task = replace(task, truth={**task.truth, **due}, events=())
+    plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
+    qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
+    plant.reset(qpos[0], qvel[0])
+    r = run_task(task, None, s, plant=plant)
+    tilt = float(np.degrees(np.max(trunk_tilt(r.traj.base_quat))))
+    return {"from": round(float(traj.t[-1] - traj.t[i]), 2), "seed": seed, **r.metrics(),
+            "max_tilt_deg": round(tilt, 1), "warnings": r.warnings[:8]}
+
+
+def replay_log(a, config: dict, task_name: str, before: list[float]) -> None:
+    """``--replay-log``: the task's own loop from a recorded run's states, one JSON line per start and seed."""
+    try:
+        traj = read_log(a.replay_log)
+    except AmheError as exc:
+        sys.exit(f"fall_forensics: {exc}")
+    rows = []
+    for b in before:
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
+            row = replay(task_name, config, traj, float(traj.t[-1]) - b, a.duration or 5.0, seed=seed)
+            rows.append(row)
+            print(json.dumps(row, default=float), flush=True)
+    print(f"replays: {sum(r['fell'] for r in rows)} falls in {len(rows)}, largest tilt "
+          f"{max(r['max_tilt_deg'] for r in rows):.1f}°")
+
+
 def one(args) -> dict:
     task_name, mode, seed, config, belief, before, duration, rescue_at = args
     task, settings = run_settings(task_name, mode, config, seed=seed, threads=1, duration=duration)
@@ -155,12 +198,19 @@ def main() -> None:
     ap.add_argument("--rescue-log", default=None, metavar="REC",
                     help="restart the recovery from this recorded fall's states instead (--rescue: seconds before "
                          "its end; --seeds: planner seeds; the task from --tasks)")
+    ap.add_argument("--replay-log", default=None, metavar="REC",
+                    help="run the task's own loop from this recorded run's states instead (--replay-from: seconds "
+                         "before its end; --duration: seconds, default 5; --seeds: planner seeds; the task from --tasks)")
+    ap.add_argument("--replay-from", default="3", help="seconds before the recording's end to replay from, e.g. 4,3")
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")
     rescue_at = [float(x) for x in a.rescue.split(",") if x]  # seconds before a fall (or a recording's end)
     if a.rescue_log:
         rescue_log(a, config, tasks[0], rescue_at or [0.5])
+        return
+    if a.replay_log:
+        replay_log(a, config, tasks[0], [float(x) for x in a.replay_from.split(",") if x])
         return
     beliefs = {}
     if set(modes) - {"true"}:
