@@ -76,6 +76,14 @@ def timeline(result, before: float) -> list[dict]:
             for j, i in enumerate(keep)]
 
 
+def plant_at(task, settings, traj, i: int):
+    """The task's lock-step sim plant set to ``traj``'s state at sample ``i``; (plant, that qpos (nq,))."""
+    plant = make_plant(task, settings.kp, settings.kd, cycle=settings.cycle)
+    qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
+    plant.reset(qpos[0], qvel[0])
+    return plant, qpos[0]
+
+
 def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0, seed: int = 0) -> dict:
     """Restart the stand recovery from the recorded state at ``t0`` [s]; did the robot stay up?
 
@@ -85,12 +93,10 @@ def rescue(task_name: str, config: dict, traj, t0: float, duration: float = 2.0,
     """
     task, s = run_settings(task_name, "true", config, seed=seed, threads=1)
     i = int(np.argmin(np.abs(traj.t - t0)))
-    plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
-    qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
-    plant.reset(qpos[0], qvel[0])
+    plant, qpos = plant_at(task, s, traj, i)
     sc = plant.scene
     planner, _ = make_planner(task, s, None, task.truth)
-    tilt, fell = float(trunk_tilt(qpos[0, sc.base_qpos[3:]])), False
+    tilt, fell = float(trunk_tilt(qpos[sc.base_qpos[3:]])), False
     with planner:
         m = plant.measure()
         while m.t < duration and not fell:
@@ -116,29 +122,25 @@ def replay(task_name: str, config: dict, traj, t0: float, duration: float, seed:
     i = int(np.argmin(np.abs(traj.t - t0)))
     due = {e.param: e.value for e in task.events if e.due(float(traj.t[i]), float(traj.box_pos[i, 0]))}
     task = replace(task, truth={**task.truth, **due}, events=())
-    plant = make_plant(task, s.kp, s.kd, cycle=s.cycle)
-    qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
-    plant.reset(qpos[0], qvel[0])
-    r = run_task(task, None, s, plant=plant)
+    r = run_task(task, None, s, plant=plant_at(task, s, traj, i)[0])
     tilt = float(np.degrees(np.max(trunk_tilt(r.traj.base_quat))))
     return {"from": round(float(traj.t[-1] - traj.t[i]), 2), "seed": seed, **r.metrics(),
             "max_tilt_deg": round(tilt, 1), "warnings": r.warnings[:8]}
 
 
-def replay_log(a, config: dict, task_name: str, before: list[float]) -> None:
-    """``--replay-log``: the task's own loop from a recorded run's states, one JSON line per start and seed."""
+def from_log(a, path: str, before: list[float], start) -> list[dict]:
+    """``start(traj, t0, seed)`` from a recorded run's states ``before`` [s] before its end, for each of
+    ``--seeds`` planner seeds; one JSON line each as it finishes, and the rows."""
     try:
-        traj = read_log(a.replay_log)
+        traj = read_log(path)
     except AmheError as exc:
         sys.exit(f"fall_forensics: {exc}")
     rows = []
     for b in before:
         for seed in range(a.first_seed, a.first_seed + a.seeds):
-            row = replay(task_name, config, traj, float(traj.t[-1]) - b, a.duration or 5.0, seed=seed)
-            rows.append(row)
-            print(json.dumps(row, default=float), flush=True)
-    print(f"replays: {sum(r['fell'] for r in rows)} falls in {len(rows)}, largest tilt "
-          f"{max(r['max_tilt_deg'] for r in rows):.1f}°")
+            rows.append(start(traj, float(traj.t[-1]) - b, seed))
+            print(json.dumps(rows[-1], default=float), flush=True)
+    return rows
 
 
 def one(args) -> dict:
@@ -166,17 +168,16 @@ def rescue_log(a, config: dict, task_name: str, before: list[float]) -> None:
     The restarted plant holds the task's starting truth (an event of the recorded run, such as T3's mass
     switch, has not fired in it): a recovery that does not touch the box does not see the difference.
     """
-    try:
-        traj = read_log(a.rescue_log)
-    except AmheError as exc:
-        sys.exit(f"fall_forensics: {exc}")
-    tries = []
-    for b in before:
-        for seed in range(a.first_seed, a.first_seed + a.seeds):
-            row = rescue(task_name, config, traj, float(traj.t[-1]) - b, seed=seed)
-            tries.append(row)
-            print(json.dumps(row), flush=True)
+    tries = from_log(a, a.rescue_log, before, lambda traj, t0, seed: rescue(task_name, config, traj, t0, seed=seed))
     print(f"rescues: {sum(not x['fell'] for x in tries)} of {len(tries)} restarts stayed up")
+
+
+def replay_log(a, config: dict, task_name: str, before: list[float]) -> None:
+    """``--replay-log``: the task's own loop from a recorded run's states, one JSON line per start and seed."""
+    rows = from_log(a, a.replay_log, before,
+                    lambda traj, t0, seed: replay(task_name, config, traj, t0, a.duration or 5.0, seed=seed))
+    print(f"replays: {sum(r['fell'] for r in rows)} falls in {len(rows)}, largest tilt "
+          f"{max(r['max_tilt_deg'] for r in rows):.1f}°")
 
 
 def main() -> None:
