@@ -25,7 +25,8 @@ up here fell to what the wall clock adds (late plans, a state estimated from noi
 ``--replay-log REC --tasks T --replay-from 4,3 --duration 6 --seeds 4`` runs the task's *own* loop (the
 planner as the run config sets it, the reflex, true parameters, any event of the recorded run already
 fired) from a recorded run's states that many seconds before its end, in lock-step: does the controller
-fall from there without the wall clock? Comparing versions (``PYTHONPATH`` at another checkout) on the
+fall from there without the wall clock? (A config's ``latency`` makes every plan that late, as ``amhe run``
+does with it.) Comparing versions (``PYTHONPATH`` at another checkout) on the
 same recorded states tries a change against the situation that broke a robot.
 
 Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``); ``--beliefs DIR``
@@ -76,9 +77,10 @@ def timeline(result, before: float) -> list[dict]:
             for j, i in enumerate(keep)]
 
 
-def plant_at(task, settings, traj, i: int):
-    """The task's lock-step sim plant set to ``traj``'s state at sample ``i``; (plant, that qpos (nq,))."""
-    plant = make_plant(task, settings.kp, settings.kd, cycle=settings.cycle)
+def plant_at(task, settings, traj, i: int, latency: bool = False):
+    """The task's sim plant set to ``traj``'s state at sample ``i`` (lock-step; with ``latency`` the one
+    ``settings.latency`` runs on, as :func:`run_task` makes it); (plant, that qpos (nq,))."""
+    plant = make_plant(task, settings.kp, settings.kd, settings.planner.dt, realtime=latency, cycle=settings.cycle)
     qpos, qvel = plant.scene.qpos_qvel(traj.slice(i, i + 1))
     plant.reset(qpos[0], qvel[0])
     return plant, qpos[0]
@@ -122,7 +124,7 @@ def replay(task_name: str, config: dict, traj, t0: float, duration: float, seed:
     i = int(np.argmin(np.abs(traj.t - t0)))
     due = {e.param: e.value for e in task.events if e.due(float(traj.t[i]), float(traj.box_pos[i, 0]))}
     task = replace(task, truth={**task.truth, **due}, events=())
-    r = run_task(task, None, s, plant=plant_at(task, s, traj, i)[0])
+    r = run_task(task, None, s, plant=plant_at(task, s, traj, i, latency=s.latency is not None)[0])
     tilt = float(np.degrees(np.max(trunk_tilt(r.traj.base_quat))))
     return {"from": round(float(traj.t[-1] - traj.t[i]), 2), "seed": seed, **r.metrics(),
             "max_tilt_deg": round(tilt, 1), "warnings": r.warnings[:8]}

@@ -810,6 +810,10 @@ def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and
     with pytest.raises(AmheError, match="robot has its own"):
         run_task(task, None, small_settings("true", latency=0.04), plant=plant)
     assert closed == ["latency needs the sim plant"]
+    # the sim plant it makes itself, handed in (fall_forensics --replay-log sets its state first): the same run
+    s = small_settings("true", latency=0.04)
+    own = run_task(task, None, s, plant=make_plant(task, s.kp, s.kd, s.planner.dt, realtime=True, cycle=s.cycle))
+    np.testing.assert_array_equal(own.traj.base_pos, runs[0].traj.base_pos)
 
 
 def test_mhe_update_reaches_the_planner_with_inertia_following_mass():

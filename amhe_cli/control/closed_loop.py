@@ -441,7 +441,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         settings: :class:`RunSettings`.
         progress: called with the plant time [s] after every cycle.
         plant: the :class:`~amhe_cli.plants.base.Plant` to drive (default: the
-            task's sim plant, lock-step unless ``settings.realtime``). It is
+            task's sim plant, lock-step unless ``settings.realtime``; with ``settings.latency``
+            only a sim plant made with ``realtime``, as :func:`make_plant` makes it). It is
             closed at the end, with the reason when the run failed.
         view: an :class:`~amhe_cli.io.view.View` told, each cycle, the measured state, the plan
             (mean paths, compute time, lead), the safety state of a plant that has one
@@ -461,7 +462,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     pdt = s.planner.dt
     if plant is None:
         plant = make_plant(task, s.kp, s.kd, pdt, realtime=s.realtime or s.latency is not None, cycle=s.cycle)
-    elif s.latency is not None:
+    elif s.latency is not None and not (isinstance(plant, SimPlant) and plant.realtime):
         plant.close("latency needs the sim plant")
         raise AmheError("latency emulates the wall clock in the sim: a robot has its own (drop the latency setting)")
     # the wall clock itself (a robot, --realtime), not the lock-step sim that emulates one with a fixed latency
