@@ -358,6 +358,35 @@ def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
     assert not walk.get("clearing") and walk["speed"] > 0
 
 
+def test_a_push_with_the_box_beside_the_robot_turns_to_face_it_instead_of_walking():
+    """An emulated T3 fall (machine L): in the push zone, 60–100° off the push heading, the box at the
+    robot's side blocked its turn; it walked on beside the box for 5 s until a hind leg caught the box's
+    corner. With the box's nearest point more than BESIDE off the heading, the push turns on the spot (or
+    steps clear first); with the box ahead of the head the same heading error still pushes (T2's turns)."""
+    from amhe_cli.control.tasks import BESIDE, CLEAR_SPEED, TURN_CLEARANCE, TURN_IN_PLACE, box_clearance, box_nearest
+    task = get_task("t4")
+    box = np.array([1.0, 0.0])  # pushed along +x (the goal at x = 2)
+    base = box - [0.40, 0.0]  # on the push line, in the push zone
+    heading = np.radians(-75.0)  # turned right: the box's nearest point lies ~70° to its left
+    near = box_nearest(base, box, 0.0, HALF_DEPTH, HALF_DEPTH)
+    np.testing.assert_allclose(near, box - [HALF_DEPTH, 0.0])  # the rear face's centre
+    cmd = task.command(base, heading, box, HALF_DEPTH)
+    assert cmd["phase"] == "push" and cmd["beside"] and cmd["box_speed"] == 0.0
+    assert box_clearance(base, box, 0.0, HALF_DEPTH, HALF_DEPTH) < TURN_CLEARANCE
+    assert cmd["clearing"] and abs(cmd["speed"]) == CLEAR_SPEED and cmd["omega"] == 0.0
+    # clear of the box: it turns on the spot toward the push, left
+    far = task.command(box - [HALF_DEPTH + TURN_CLEARANCE + 0.01, 0.0], heading, box, HALF_DEPTH)
+    assert far["phase"] == "push" and far["beside"] and not far.get("clearing")
+    assert far["speed"] == 0.0 and far["omega"] > 0 and far["box_speed"] == 0.0
+    # the same heading error with the box ahead of the head (its corner against the plate) still pushes
+    ahead = task.command(base, np.radians(-45.0), box, HALF_DEPTH)
+    assert abs(np.radians(-45.0) - ahead["yaw"]) > TURN_IN_PLACE
+    assert np.radians(45.0) < BESIDE  # the rear face's centre, dead ahead of the base, 45° to the heading's left
+    assert ahead["phase"] == "push" and not ahead.get("beside") and ahead["speed"] > 0
+    # and within TURN_IN_PLACE of the push heading it pushes whatever the bearing
+    assert not task.command(base, 0.0, box, HALF_DEPTH).get("beside")
+
+
 def test_t1_speed_command_slows_to_its_floor_at_goal_and_a_bad_floor_is_refused():
     task = get_task("t1")
     goal = np.asarray(task.goal)

@@ -542,6 +542,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         pending = False
         phase = None
         clearing = False  # the approach's step away from the box before it turns (Task.command)
+        beside = False  # the push turning on the spot to face the box at its side (Task.command)
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
@@ -565,6 +566,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 elif phase is not None and cmd["phase"] == "push":
                     note(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
+            if cmd.get("beside", False) != beside:
+                beside = cmd.get("beside", False)
+                if beside:
+                    note(f"t={t:.2f} s: the box is beside the robot, not ahead: turning to face the push first")
             if cmd.get("clearing", False) != clearing:
                 clearing = cmd.get("clearing", False)
                 if clearing:

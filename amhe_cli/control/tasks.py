@@ -70,6 +70,14 @@ TURN_CLEARANCE = 0.30
 #: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
 #: heading (backward where the box is ahead): the trot has no sidestep.
 CLEAR_SPEED = 0.15
+#: Push phase: the box's footprint point nearest the trunk's origin this far off its heading [rad] (60°) is
+#: beside the robot, not ahead of its head. More than :data:`TURN_IN_PLACE` off the push heading, such a
+#: robot turns on the spot (stepping clear first, as in the approach) instead of walking while it turns:
+#: an emulated T3 run (machine L) "pushed" 5 s with the box 62–85° off its heading, its turn blocked by the
+#: box at its side, until a hind leg caught the box's corner and it pitched over. Stood-up T2 runs have the
+#: box this far off in under 5 % of their push samples, where a rule on the heading alone took 43 %
+#: and cost T2 its time (docs/fall_prevention.md, "Turning beside the box").
+BESIDE = np.radians(60.0)
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
 BASE_HEIGHT = 0.265
 #: One-leg push (T5): the free foot's centre this far below the trunk origin [m] (about 7 cm above the
@@ -279,7 +287,11 @@ class Task:
           :data:`LINE_TOLERANCE` of the push line. The waypoint is the pushing
           pose on that line; the heading is ``d``, bent back toward the line by
           :data:`LINE_GAIN` per metre of offset (the trot has no sidestep, so the
-          robot corrects its offset by steering, as a line follower does).
+          robot corrects its offset by steering, as a line follower does). Where
+          the box is beside the robot rather than ahead of its head (its nearest
+          point more than :data:`BESIDE` off the heading) and the heading is more
+          than :data:`TURN_IN_PLACE` off, it turns on the spot instead (``beside``
+          True; stepping clear first as below) with the box's reference held still.
         * **approach**: otherwise (it slid off the box, walked past it, or fell
           back). The robot walks to a pre-push point :data:`APPROACH_MARGIN`
           behind the pushing pose — around the box's side first if the box is in
@@ -305,8 +317,8 @@ class Task:
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
             for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
-            of its reference, ``phase`` ``"push"`` or ``"approach"`` (with ``clearing`` True while it
-            steps away from the box before turning), ``base`` (2,) the
+            of its reference, ``phase`` ``"push"`` (with ``beside`` True while it turns to face the push) or ``"approach"``
+            (``clearing`` True while it steps away from the box before turning), ``base`` (2,) the
             trunk now (where :meth:`waypoint_reference` starts), ``base_yaw`` its heading now [rad]
             (where :meth:`heading_reference` starts); the one-leg
             push adds ``reach`` (see :meth:`reach`) and ``box_yaw`` (the box's yaw now, [rad]).
@@ -341,8 +353,14 @@ class Task:
         behind = -(reach + PUSH_ZONE[1]) <= along <= -(half_depth + PUSH_ZONE[0])
         if behind and abs(lateral) <= half_width + LINE_TOLERANCE:
             yaw = push_yaw - float(np.clip(LINE_GAIN * lateral, -MAX_LINE_BEND, MAX_LINE_BEND))
-            return {**out, "direction": d, "waypoint": box_xy - d * reach, "yaw": yaw,
-                    "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
+            out = {**out, "direction": d, "waypoint": box_xy - d * reach, "yaw": yaw}
+            near_point = box_nearest(base_xy, box_xy, box_yaw, half_depth, half_width) - base_xy
+            bearing = _yaw_error(float(np.arctan2(near_point[1], near_point[0])), base_yaw)
+            if abs(_yaw_error(yaw, base_yaw)) > TURN_IN_PLACE and abs(bearing) > BESIDE:
+                # the box is beside the robot, not ahead of its head: turn to face the push first
+                return self._turn_on_the_spot({**out, "box_speed": 0.0, "beside": True}, base_xy, base_yaw,
+                                              box_xy, box_yaw, half_depth, half_width)
+            return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
         if along > -(half_depth + PUSH_ZONE[0]):
@@ -352,15 +370,23 @@ class Task:
         yaw = float(np.arctan2(to_wp[1], to_wp[0]))
         near = min(1.0, float(np.linalg.norm(to_wp)) / self.slow_radius)  # slowing down as at the goal
         out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach"}
+        out = {**out, "waypoint": waypoint, "yaw": yaw}
         if abs(_yaw_error(yaw, base_yaw)) <= TURN_IN_PLACE:
-            return {**out, "waypoint": waypoint, "yaw": yaw, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
-        if box_clearance(base_xy, box_xy, box_yaw, half_depth, half_width) < TURN_CLEARANCE:
-            # too near to turn on the spot: step along the heading, away from the box, first
+            return {**out, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
+        return self._turn_on_the_spot(out, base_xy, base_yaw, box_xy, box_yaw, half_depth, half_width)
+
+    @staticmethod
+    def _turn_on_the_spot(out: dict, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, box_yaw: float,
+                          half_x: float, half_y: float) -> dict:
+        """:meth:`command`'s targets for a turn on the spot toward ``out['yaw']`` [rad] (speed 0) — or, with
+        the trunk's origin nearer the box's footprint than :data:`TURN_CLEARANCE` [m], a step along the
+        heading away from the box first (``clearing`` True; backward where the box is ahead)."""
+        if box_clearance(base_xy, box_xy, box_yaw, half_x, half_y) < TURN_CLEARANCE:
             heading = np.array([np.cos(base_yaw), np.sin(base_yaw)])
             away = -1.0 if float((box_xy - base_xy) @ heading) > 0 else 1.0
             return {**out, "waypoint": base_xy + away * heading * TURN_CLEARANCE, "yaw": float(base_yaw),
                     "speed": away * CLEAR_SPEED, "omega": 0.0, "clearing": True}
-        return {**out, "waypoint": waypoint, "yaw": yaw, "speed": 0.0, "omega": _turn(yaw, base_yaw)}
+        return {**out, "speed": 0.0, "omega": _turn(out["yaw"], base_yaw)}
 
     def reach(self, t: float, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, box_yaw: float,
               direction: np.ndarray, half_x: float, half_y: float, speed: float) -> dict:
@@ -540,15 +566,23 @@ class Task:
         return self.weights.terminal * self._box_term(box_pos, cmd, tau)
 
 
-def box_clearance(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x: float,
-                  half_y: float) -> float:
-    """Distance [m] in the floor plane from ``point_xy`` (2,) to a box's footprint: the rectangle of half
-    extents ``half_x``, ``half_y`` [m] along the box's own axes, centred at ``box_xy`` (2,) and turned by
-    ``box_yaw`` [rad]; 0 inside it."""
+def box_nearest(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x: float,
+                half_y: float) -> np.ndarray:
+    """(2,) the point of a box's footprint nearest ``point_xy`` (2,) [m], in the floor plane: the footprint is
+    the rectangle of half extents ``half_x``, ``half_y`` [m] along the box's own axes, centred at ``box_xy``
+    (2,) and turned by ``box_yaw`` [rad]; ``point_xy`` itself where it lies inside."""
     c, s_ = np.cos(box_yaw), np.sin(box_yaw)
     dx, dy = np.subtract(point_xy, box_xy)
-    local = np.array([c * dx + s_ * dy, -s_ * dx + c * dy])
-    return float(np.linalg.norm(np.maximum(np.abs(local) - [half_x, half_y], 0.0)))
+    lx = np.clip(c * dx + s_ * dy, -half_x, half_x)
+    ly = np.clip(-s_ * dx + c * dy, -half_y, half_y)
+    return np.asarray(box_xy, float) + [c * lx - s_ * ly, s_ * lx + c * ly]
+
+
+def box_clearance(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x: float,
+                  half_y: float) -> float:
+    """Distance [m] in the floor plane from ``point_xy`` (2,) to a box's footprint (:func:`box_nearest`);
+    0 inside it."""
+    return float(np.linalg.norm(np.subtract(point_xy, box_nearest(point_xy, box_xy, box_yaw, half_x, half_y))))
 
 
 def _yaw_error(yaw: float, base_yaw: float) -> float:
