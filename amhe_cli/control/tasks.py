@@ -75,7 +75,7 @@ CLEAR_SPEED = 0.15
 #: robot turns on the spot (stepping clear first, as in the approach) instead of walking while it turns:
 #: an emulated T3 run (machine L) "pushed" 5 s with the box 62–85° off its heading, its turn blocked by the
 #: box at its side, until a hind leg caught the box's corner and it pitched over. Stood-up T2 runs have the
-#: box this far off in under 5 % of their push samples, where a rule on the heading alone took 43 %
+#: box this far off in under 5 % of their push samples, where a rule on the heading alone took 40–61 %
 #: and cost T2 its time (docs/fall_prevention.md, "Turning beside the box").
 BESIDE = np.radians(60.0)
 #: Nominal base height of the standing Go1 over its floor [m] (after sinkage).
