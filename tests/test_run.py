@@ -367,7 +367,7 @@ def test_a_push_with_the_box_beside_the_robot_turns_to_face_it_instead_of_walkin
     task = get_task("t4")
     box = np.array([1.0, 0.0])  # pushed along +x (the goal at x = 2)
     base = box - [0.40, 0.0]  # on the push line, in the push zone
-    heading = np.radians(-75.0)  # turned right: the box's nearest point lies ~70° to its left
+    heading = np.radians(-75.0)  # turned right: the box's nearest point lies 75° to its left
     near = box_nearest(base, box, 0.0, HALF_DEPTH, HALF_DEPTH)
     np.testing.assert_allclose(near, box - [HALF_DEPTH, 0.0])  # the rear face's centre
     cmd = task.command(base, heading, box, HALF_DEPTH)
@@ -378,7 +378,7 @@ def test_a_push_with_the_box_beside_the_robot_turns_to_face_it_instead_of_walkin
     far = task.command(box - [HALF_DEPTH + TURN_CLEARANCE + 0.01, 0.0], heading, box, HALF_DEPTH)
     assert far["phase"] == "push" and far["beside"] and not far.get("clearing")
     assert far["speed"] == 0.0 and far["omega"] > 0 and far["box_speed"] == 0.0
-    # the same heading error with the box ahead of the head (its corner against the plate) still pushes
+    # 45° off with the box ahead of the head plate (T2's box turning under it) still pushes
     ahead = task.command(base, np.radians(-45.0), box, HALF_DEPTH)
     assert abs(np.radians(-45.0) - ahead["yaw"]) > TURN_IN_PLACE
     assert np.radians(45.0) < BESIDE  # the rear face's centre, dead ahead of the base, 45° to the heading's left

@@ -369,8 +369,7 @@ class Task:
         to_wp = waypoint - base_xy
         yaw = float(np.arctan2(to_wp[1], to_wp[0]))
         near = min(1.0, float(np.linalg.norm(to_wp)) / self.slow_radius)  # slowing down as at the goal
-        out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach"}
-        out = {**out, "waypoint": waypoint, "yaw": yaw}
+        out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach", "waypoint": waypoint, "yaw": yaw}
         if abs(_yaw_error(yaw, base_yaw)) <= TURN_IN_PLACE:
             return {**out, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
         return self._turn_on_the_spot(out, base_xy, base_yaw, box_xy, box_yaw, half_depth, half_width)
