@@ -30,7 +30,7 @@ off and ``mhe_update_s`` their median wall time [s]), then one row per (task, mo
   the fixed belief's error against the changed world.
 
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
-                                           [--duration 40] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--pose-latency 0.02] [--threads 3]
+                                           [--duration S] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--pose-latency 0.02] [--threads 3]
                                            [--label TEXT]   # tags the rows: --table keeps labels apart
     python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
 
@@ -129,9 +129,10 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     pin = ["taskset", "-c", ",".join(map(str, client))]
     pin_emu = ["taskset", "-c", ",".join(map(str, robot or client))]
     pose = free_port()
+    duration = args.duration or get_task(task_name).duration  # the task's own limit unless given
     recording = os.path.join(args.out_dir, f"go1_{task_name}_{mode}_s{seed}.mcap")
     emu = subprocess.Popen(pin_emu + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
-                                         f"127.0.0.1:{pose}", "--duration", str(args.duration + 30), "--seed",
+                                         f"127.0.0.1:{pose}", "--duration", str(duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise,
                                          *(["--pose-latency", str(args.pose_latency)]
                                            if args.pose_latency is not None else [])],
@@ -148,11 +149,11 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         t0 = time.monotonic()
         proc = subprocess.run(pin + AMHE + ["run", "--task", task_name, "--target", "go1", "--robot",
                                             f"127.0.0.1:{port}", "--local-port", "0", "--mocap", f"udp:127.0.0.1:{pose}",
-                                            "--mode", mode, "--arm", "--json", "--duration", str(args.duration),
+                                            "--mode", mode, "--arm", "--json", "--duration", str(duration),
                                             "--seed", str(seed), "--out", recording, "--force",
                                             *(["--config", args.config] if args.config else []),
                                             *(["--threads", str(args.threads)] if args.threads else [])],
-                              capture_output=True, text=True, timeout=args.duration + 180)
+                              capture_output=True, text=True, timeout=duration + 180)
         wall = time.monotonic() - t0
     finally:
         emu.terminate()
@@ -251,7 +252,8 @@ def main() -> None:
     ap.add_argument("--modes", default="adaptive")
     ap.add_argument("--seeds", type=int, default=5)
     ap.add_argument("--first-seed", type=int, default=0)
-    ap.add_argument("--duration", type=float, default=20.0)
+    ap.add_argument("--duration", type=float, default=None,
+                    help="time limit per run [s] (default: the task's own, as amhe run's: T1 40 s, T2-T4 60 s, T5 20 s)")
     ap.add_argument("--cores-per-run", type=int, default=2, help="CPUs each client is pinned to")
     ap.add_argument("--emulator-cores", type=int, default=None,
                     help="CPUs of each emulator's own, the robot's computer (0: it shares the client's; "
