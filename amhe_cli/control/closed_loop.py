@@ -73,6 +73,9 @@ RUN_PARAMS = ("box_mass", "box_inertia", "box_friction")
 #: Pushing a box straight hardly excites its inertia, and three more free coordinates made
 #: every update noisier in mass and friction.
 MHE_PARAMS = ("box_mass", "box_friction")
+#: The run's log line as each flag of :meth:`~amhe_cli.control.tasks.Task.command` comes on.
+COMMAND_NOTES = {"beside": "the box is beside the robot, not ahead: turning to face the push first",
+                 "clearing": "too near the box to turn on the spot, stepping clear of it first"}
 #: Longest latency compensation on the wall clock [s]: a planner slower than this is
 #: better off replanning from the measured state than from a long open-loop prediction.
 MAX_LEAD = 0.15
@@ -541,8 +544,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         next_update = s.mhe.window
         pending = False
         phase = None
-        clearing = False  # the approach's step away from the box before it turns (Task.command)
-        beside = False  # the push turning on the spot to face the box at its side (Task.command)
+        flags = dict.fromkeys(COMMAND_NOTES, False)  # Task.command's flags as of the last cycle
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
@@ -566,14 +568,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 elif phase is not None and cmd["phase"] == "push":
                     note(f"t={t:.2f} s: behind the box again, pushing")
                 phase = cmd["phase"]
-            if cmd.get("beside", False) != beside:
-                beside = cmd.get("beside", False)
-                if beside:
-                    note(f"t={t:.2f} s: the box is beside the robot, not ahead: turning to face the push first")
-            if cmd.get("clearing", False) != clearing:
-                clearing = cmd.get("clearing", False)
-                if clearing:
-                    note(f"t={t:.2f} s: too near the box to turn on the spot, stepping clear of it first")
+            for flag, text in COMMAND_NOTES.items():  # said as each flag comes on
+                if cmd.get(flag, False) and not flags[flag]:
+                    note(f"t={t:.2f} s: {text}")
+                flags[flag] = cmd.get(flag, False)
             gait = stand if reflex.active else planner.gait
             state = pscene.full_state(q[None], v[None])[0]
             lead = 0.0
