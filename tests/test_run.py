@@ -387,6 +387,34 @@ def test_a_push_with_the_box_beside_the_robot_turns_to_face_it_instead_of_walkin
     assert not task.command(base, 0.0, box, HALF_DEPTH).get("beside")
 
 
+def test_the_push_zone_takes_the_box_turn_and_enters_with_hysteresis():
+    """An emulated T4 run (machine L) stood beside a box turned 50°, 0.16–0.22 m behind its centre and 0.4 m off
+    the push line, and lost and regained the box 10 times in 7 s: the zone's front edge took the box unturned
+    (0.19 m back), and nothing held a phase once taken."""
+    from amhe_cli.control.tasks import LINE_TOLERANCE, PHASE_HYSTERESIS, PUSH_ZONE
+    task = get_task("t4")
+    box = np.array([1.0, 0.0])  # pushed along +x
+    corner = box + [-0.20, -0.40]  # the episode's stance, facing the push
+    assert task.command(corner, 0.0, box, HALF_DEPTH)["phase"] == "push"  # an unturned box: behind it
+    turned = np.radians(50.0)  # the box reaches 0.19 (cos 50° + sin 50°) = 0.27 m back
+    assert task.command(corner, 0.0, box, HALF_DEPTH, box_yaw=turned)["phase"] == "approach"
+    behind = box + [-(0.19 * (np.cos(turned) + np.sin(turned)) + 0.01), -0.40]
+    assert task.command(behind, 0.0, box, HALF_DEPTH, box_yaw=turned)["phase"] == "push"
+    assert task.command(corner, 0.0, box, HALF_DEPTH, box_yaw=-turned)["phase"] == "approach"  # either way
+    # hysteresis: just inside each edge the phase stays what it was; well inside, the approach ends
+    edges = {"front": [-(HALF_DEPTH + PUSH_ZONE[0]) - PHASE_HYSTERESIS / 2, 0.0],
+             "side": [-(HALF_DEPTH + HEAD_REACH), HALF_DEPTH + LINE_TOLERANCE - PHASE_HYSTERESIS / 2],
+             "back": [-(HALF_DEPTH + HEAD_REACH + PUSH_ZONE[1]) + PHASE_HYSTERESIS / 2, 0.0]}
+    for edge, rel in edges.items():
+        base = box + rel
+        for prev, expected in ((None, "push"), ("push", "push"), ("approach", "approach")):
+            assert task.command(base, 0.0, box, HALF_DEPTH, phase=prev)["phase"] == expected, (edge, prev)
+    inside = box - [HALF_DEPTH + HEAD_REACH, 0.0]
+    assert task.command(inside, 0.0, box, HALF_DEPTH, phase="approach")["phase"] == "push"
+    outside = box - [HALF_DEPTH - 0.01, HALF_DEPTH + HEAD_REACH]  # past the front edge: approach whatever came before
+    assert task.command(outside, 0.0, box, HALF_DEPTH, phase="push")["phase"] == "approach"
+
+
 def test_t1_speed_command_slows_to_its_floor_at_goal_and_a_bad_floor_is_refused():
     task = get_task("t1")
     goal = np.asarray(task.goal)

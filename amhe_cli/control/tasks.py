@@ -50,6 +50,12 @@ PUSH_ZONE = (0.0, 0.5)
 #: Push phase: largest offset of the robot's origin from the push line beyond the box's half width [m]
 #: (0.25: the head plate still overlaps the box; pushing a corner is still pushing).
 LINE_TOLERANCE = 0.25
+#: Push phase: the zone's hysteresis [m]. Coming from the approach, the robot enters the push only this far
+#: inside the zone's front, side and back edges; once pushing, it leaves at the edges themselves. Without it an
+#: emulated T4 run (machine L, Adaptive seed 0) stood beside a turned box's rear corner, 0.36–0.46 m off the push
+#: line, and lost and regained the box 10 times in 7 s across the zone's front edge: each push walked it forward
+#: out of the zone, each approach back into it (docs/evaluation.md, "Losing the box").
+PHASE_HYSTERESIS = 0.1
 #: Push phase: heading bend back toward the push line per metre of offset [rad/m], and its limit [rad].
 LINE_GAIN, MAX_LINE_BEND = 1.5, 0.35
 #: Approach phase: the pre-push point lies this much behind the pushing pose (and this much more
@@ -276,15 +282,18 @@ class Task:
         return float(np.linalg.norm(np.asarray(box_xy)[:2] - np.asarray(self.goal)))
 
     def command(self, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, half_depth: float,
-                half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0) -> dict:
+                half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0,
+                phase: str | None = None) -> dict:
         """Per-cycle targets for the planner's cost and the gait.
 
         Walking tasks have two phases, chosen from where the robot stands in the
         push frame (``d`` from the box to its target):
 
         * **push**: the robot is behind the box (its origin between
-          :data:`PUSH_ZONE` behind the box's rear face) and within ``half_width +``
-          :data:`LINE_TOLERANCE` of the push line. The waypoint is the pushing
+          :data:`PUSH_ZONE` behind the box's rear extent along ``d``, its footprint
+          turned by ``box_yaw``) and within ``half_width +`` :data:`LINE_TOLERANCE`
+          of the push line; coming from the approach (``phase``) it must be
+          :data:`PHASE_HYSTERESIS` inside those edges. The waypoint is the pushing
           pose on that line; the heading is ``d``, bent back toward the line by
           :data:`LINE_GAIN` per metre of offset (the trot has no sidestep, so the
           robot corrects its offset by steering, as a line follower does). Where
@@ -311,7 +320,9 @@ class Task:
             half_depth: half the box's extent along the push [m].
             half_width: half its extent across the push [m] (default: ``half_depth``).
             t: time since the task started [s] (the one-leg push's reach phases).
-            box_yaw: the box's yaw [rad] (the one-leg push: which face the foot meets).
+            box_yaw: the box's yaw [rad] (the push zone's front edge; the one-leg push: which face the foot meets).
+            phase: the phase this returned last cycle (``"push"``, ``"approach"``), for the zone's
+                hysteresis; None (a first cycle, or a stateless caller): the zone's own edges.
         Returns:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
@@ -350,8 +361,13 @@ class Task:
         along, lateral = float(rel @ d), float(rel @ normal)
         reach = half_depth + HEAD_REACH
         push_yaw = float(np.arctan2(d[1], d[0]))
-        behind = -(reach + PUSH_ZONE[1]) <= along <= -(half_depth + PUSH_ZONE[0])
-        if behind and abs(lateral) <= half_width + LINE_TOLERANCE:
+        # the box's rear extent along the push: its footprint turned by its yaw (a square box turned 45° reaches
+        # √2 times its half depth back), so that a robot beside a turned box's corner is not taken as behind it
+        c, s_ = np.cos(box_yaw), np.sin(box_yaw)
+        rear = half_depth * abs(d[0] * c + d[1] * s_) + half_width * abs(d[1] * c - d[0] * s_)
+        inset = PHASE_HYSTERESIS if phase == "approach" else 0.0
+        behind = -(reach + PUSH_ZONE[1]) + inset <= along <= -(rear + PUSH_ZONE[0]) - inset
+        if behind and abs(lateral) <= half_width + LINE_TOLERANCE - inset:
             yaw = push_yaw - float(np.clip(LINE_GAIN * lateral, -MAX_LINE_BEND, MAX_LINE_BEND))
             out = {**out, "direction": d, "waypoint": box_xy - d * reach, "yaw": yaw}
             near_point = box_nearest(base_xy, box_xy, box_yaw, half_depth, half_width) - base_xy
@@ -363,7 +379,7 @@ class Task:
             return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
-        if along > -(half_depth + PUSH_ZONE[0]):
+        if along > -(rear + PUSH_ZONE[0]):
             side = 1.0 if lateral >= 0 else -1.0
             waypoint = waypoint + normal * side * (half_width + HEAD_REACH + APPROACH_MARGIN)
         to_wp = waypoint - base_xy
