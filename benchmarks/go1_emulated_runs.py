@@ -45,6 +45,7 @@ import json
 import os
 import re
 import socket
+import shlex
 import subprocess
 import sys
 import threading
@@ -135,7 +136,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                                          f"127.0.0.1:{pose}", "--duration", str(duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise,
                                          *(["--pose-latency", str(args.pose_latency)]
-                                           if args.pose_latency is not None else [])],
+                                           if args.pose_latency is not None else []),
+                                         *shlex.split(args.emulator_args)],
                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     lines: Queue = Queue()
     reader = threading.Thread(target=lambda: [lines.put(x) for x in emu.stdout], daemon=True)
@@ -176,6 +178,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
                **({"threads": args.threads} if args.threads else {}),
                **({"label": args.label} if args.label else {}),
+               **({"emulator_args": args.emulator_args} if args.emulator_args else {}),
                emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
@@ -270,6 +273,9 @@ def main() -> None:
     ap.add_argument("--pose-noise", default="0.001,0.2deg", help="the emulator's pose noise (0,0: clean)")
     ap.add_argument("--pose-latency", type=float, default=None,
                     help="how late the emulator's poses arrive [s] (default: the emulator's own, 3 ms)")
+    ap.add_argument("--emulator-args", default="",
+                    help="more arguments for amhe emulate go1, given with '=': a robot unlike its model, "
+                         "--emulator-args='--robot trunk_payload=1.5 --motor-strength 0.85' (kept in each row)")
     ap.add_argument("--label", default=None,
                     help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
                          "rows with different labels apart")

@@ -24,7 +24,7 @@ from amhe_cli.plants.go1.link import LowLevelLink
 from amhe_cli.plants.go1.mocap import UdpPoseSource, decode_pose_datagram
 from amhe_cli.plants.go1.protocol import (LOWSTATE_SIZE, MODE_DAMPING, MODE_SERVO, POS_STOP_F, VEL_STOP_F, LowCmd,
                                           LowState, ProtocolError)
-from amhe_cli.cli.emulate import parse_pose_noise
+from amhe_cli.cli.emulate import parse_pose_noise, parse_robot
 
 LOOP = "127.0.0.1"
 LIMIT = np.tile([23.7, 23.7, 35.55], 4)
@@ -99,6 +99,39 @@ def test_motor_torques_follow_the_go1_motor_law():
     np.testing.assert_allclose(tau[:6], -DAMPING_MODE_KD * dq[:6])
     np.testing.assert_allclose(tau[6:], 3.0, atol=1e-9)
     np.testing.assert_allclose(motor_torques(None, q, dq, LIMIT), -DAMPING_MODE_KD * dq)
+    # weaker motors than the model's deliver a share of the law, and of its limits
+    np.testing.assert_allclose(motor_torques(cmd, q, dq, LIMIT, 0.8), 0.8 * (20 * 0.1 + 2 * (0.5 - dq) + 1.0),
+                               atol=1e-9)
+    np.testing.assert_allclose(motor_torques(big, q, Z12, LIMIT, 0.8), 0.8 * LIMIT)
+
+
+def test_a_robot_unlike_its_model_stands_lower_and_bad_robot_settings_are_refused():
+    """``--robot trunk_payload=…`` and ``--motor-strength`` make the emulated Go1 heavier or weaker than the
+    model amhe plans with: under the same stand command its trunk settles lower."""
+    assert parse_robot("trunk_payload=1.5, robot_box_friction=0.8") == {"trunk_payload": 1.5,
+                                                                        "robot_box_friction": 0.8}
+    assert parse_robot(None) == {} and parse_robot("") == {}
+    for bad in ("robot_kp=40", "trunk_payload", "trunk_payload=heavy", "trunk_payload=50", "box_mass=3"):
+        with pytest.raises(AmheError, match="--robot"):
+            parse_robot(bad)
+    with pytest.raises(AmheError, match="motor strength"):
+        emulator(motor_strength=0.0)
+
+    def stand_height(payload=0.0, strength=1.0):
+        task = get_task("t1")
+        plant = make_plant(task, 100.0, 4.0)
+        plant.set_param("trunk_payload", payload)
+        emu = Go1Emulator(plant, [], host=LOOP, port=0, motor_strength=strength)
+        try:
+            emu._cmd = servo(kp=40.0, kd=2.0)
+            for _ in range(750):  # 1.5 s
+                emu._tick()
+            return float(emu.data.qpos[plant.scene.base_qpos[2]])
+        finally:
+            emu.close()
+    nominal = stand_height()
+    assert stand_height(payload=3.0) < nominal - 0.003
+    assert stand_height(strength=0.6) < nominal - 0.003
 
 
 def test_parse_fault_and_pose_noise():
@@ -416,3 +449,9 @@ def test_cli_duration_and_bad_fault():
     assert re.match(r"amhe emulate go1: listening on udp://127\.0\.0\.1:[1-9]\d*, poses off, task t1", r.output)
     r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--fault", "melt@3"])
     assert isinstance(r.exception, AmheError) and "--fault 'melt@3'" in str(r.exception)
+    r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--pose-to", "off", "--duration", "0.2",
+                                         "--robot", "trunk_payload=1.5", "--motor-strength", "0.85"])
+    assert r.exit_code == 0, r.output
+    assert "robot unlike its model: trunk_payload 1.5, motor strength 0.85" in r.output
+    r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--robot", "robot_kp=40"])
+    assert isinstance(r.exception, AmheError) and "--robot 'robot_kp=40'" in str(r.exception)

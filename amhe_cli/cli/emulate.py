@@ -47,6 +47,37 @@ def parse_pose_noise(text: str) -> tuple[float, float]:
     return pos, rot
 
 
+#: The emulated robot's own parameters ``--robot`` may set, where it differs from the model ``amhe run``
+#: plans with (``model/params.py``). The joint gains are not among them: the emulator applies each LowCmd's
+#: own, and ``--motor-strength`` scales what the motors deliver.
+ROBOT_SIDE = ("trunk_payload", "robot_box_friction")
+
+
+def parse_robot(text: str | None) -> dict[str, float]:
+    """``NAME=VALUE[,NAME=VALUE]`` -> {name: value} for :data:`ROBOT_SIDE` parameters, within their bounds.
+
+    Raises:
+        AmheError: an unknown name, a value that is not a number or lies outside the parameter's bounds.
+    """
+    from amhe_cli.model.params import PARAMETERS
+    out: dict[str, float] = {}
+    for part in [p.strip() for p in (text or "").split(",") if p.strip()]:
+        name, sep, value = part.partition("=")
+        name = name.strip()
+        if not sep or name not in ROBOT_SIDE:
+            raise AmheError(f"--robot {part!r}: expected NAME=VALUE with NAME one of {', '.join(ROBOT_SIDE)}, "
+                            "e.g. trunk_payload=1.5")
+        try:
+            v = float(value)
+        except ValueError:
+            raise AmheError(f"--robot {part!r}: {value!r} is not a number") from None
+        lo, hi = PARAMETERS[name].lower[0], PARAMETERS[name].upper[0]
+        if not (math.isfinite(v) and lo <= v <= hi):
+            raise AmheError(f"--robot {part!r}: expected {name} in [{lo:g}, {hi:g}] {PARAMETERS[name].unit}")
+        out[name] = v
+    return out
+
+
 def _say_event(t: float, event, monotonic: float) -> None:
     """One stdout line per fired task event, with the machine's monotonic clock (benchmarks align runs by it)."""
     click.echo(f"amhe emulate go1: event {event.param} -> {event.value:g} at t={t:.3f} s "
@@ -81,10 +112,16 @@ def emulate_cmd():
 @click.option("--duration", type=click.FloatRange(0, min_open=True), default=None,
               help="Stop after this many seconds of emulator time (default: until SIGINT/SIGTERM).")
 @click.option("--seed", default=0, show_default=True, type=int, help="Seed of the pose noise.")
+@click.option("--robot", "robot", default=None, metavar="NAME=VALUE[,...]",
+              help="The emulated robot unlike the model amhe plans with: trunk_payload [kg] (a point mass at the "
+                   "trunk's centre of mass), robot_box_friction [-].")
+@click.option("--motor-strength", default=1.0, show_default=True, type=click.FloatRange(0, 2, min_open=True),
+              help="Share of the commanded torque the motors deliver, torque limits included (0.85: weaker "
+                   "motors than the model's).")
 @click.option("--quiet", "-q", is_flag=True, help="No summary line on stderr at the end.")
 @live_option
 def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_body, faults, record, force,
-            duration, seed, quiet, live):
+            duration, seed, robot, motor_strength, quiet, live):
     """A Go1 EDU on the low-level UDP link (legged_sdk 3.8), played by the sim plant.
 
     \b
@@ -102,10 +139,13 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
 
     fault_list = [parse_fault(f) for f in faults]
     noise = parse_pose_noise(pose_noise)
+    robot_side = parse_robot(robot)
     target = None if pose_to.strip().lower() == "off" else parse_address(pose_to, POSE_STREAM_PORT)
     check_live(live)
     t = get_task(task)
     plant = make_plant(t, _SCENE_KP, _SCENE_KD)
+    for name, value in robot_side.items():  # the robot's own truth, never shown to the client
+        plant.set_param(name, value)
     server = view = None
     if live is not None:  # the emulated robot's true state, as the plant's own view
         from amhe_cli.io.view import View
@@ -114,7 +154,8 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     try:
         emu = Go1Emulator(plant, list(t.events), host=host, port=port, pose_to=target, faults=fault_list,
                           record=record, base_body=base_body, box_body=box_body, pose_latency=pose_latency,
-                          pose_noise=noise, seed=seed, overwrite=force, view=view, on_event=_say_event)
+                          pose_noise=noise, seed=seed, overwrite=force, view=view, on_event=_say_event,
+                          motor_strength=motor_strength)
     except BaseException:
         if server is not None:
             server.close()
@@ -123,6 +164,9 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     poses = (f"poses to udp://{target[0]}:{target[1]} ({base_body}, {box_body})" if target is not None
              else "poses off")
     extra = f", faults {' '.join(f'{f.kind}@{f.t:g}' for f in fault_list)}" if fault_list else ""
+    unlike = [f"{k} {v:g}" for k, v in robot_side.items()] + (
+        [f"motor strength {motor_strength:g}"] if motor_strength != 1.0 else [])
+    extra += f", robot unlike its model: {', '.join(unlike)}" if unlike else ""
     click.echo(f"amhe emulate go1: listening on udp://{bh}:{bp}, {poses}, task {t.name}{extra}")
     sys.stdout.flush()
     try:

@@ -149,18 +149,21 @@ class EmulatorStats:
     longest_gap: float = 0.0
 
 
-def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray) -> np.ndarray:
+def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray,
+                  strength: float = 1.0) -> np.ndarray:
     """Torques (12,) [N·m] the Go1 motors apply for a command, per motor (docs/reference.md#go1-low-level-link).
 
     Mode 0x0A (servo): ``Kp (q* - q) + Kd (dq* - dq) + tau_ff``, where a q* at
     ``PosStopF`` drops the position term and a dq* at ``VelStopF`` uses dq* = 0.
     Any other mode, or no command (``cmd`` None): ``-DAMPING_MODE_KD dq``. Then
-    clipped to ±``limit``.
+    times ``strength`` and clipped to ±``strength · limit``.
 
     Args:
         cmd: the command in force, or None before the first valid one.
         q, dq: (12,) joint positions [rad] and velocities [rad/s].
         limit: (12,) torque limits [N·m].
+        strength: the share of the law's torque the motors deliver (1: as commanded; 0.85: a robot
+            whose motors are weaker than its model's, ``amhe emulate go1 --motor-strength``).
     """
     q = np.asarray(q, dtype=float)
     dq = np.asarray(dq, dtype=float)
@@ -176,7 +179,7 @@ def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.n
         vel = kd * (np.where(np.abs(dqt) >= VEL_STOP_F, 0.0, dqt) - dq)
         servo = pos + vel + np.asarray(cmd.tau, dtype=float)[:_NJ]
         tau = np.where(mode == MODE_SERVO, servo, -DAMPING_MODE_KD * dq)
-    return np.clip(tau, -limit, limit)
+    return np.clip(strength * tau, -strength * limit, strength * limit)
 
 
 def _rpy(quat: np.ndarray) -> np.ndarray:
@@ -220,17 +223,23 @@ class Go1Emulator:
             ramp to the stand: :class:`~amhe_cli.plants.go1.safety.SafetySettings` ``ramp_time``).
         view: an :class:`~amhe_cli.io.view.View` told the true state every tick (it keeps what its rate
             allows, never blocks) and each fault and task event as it fires; None: no view.
+        motor_strength: the share of the motor law's torque the motors deliver, limits included
+            (:func:`motor_torques`); 1: the model's motors.
 
     Raises:
-        AmheError: a plant whose step is not 2 ms, a bad fault, an existing
+        AmheError: a plant whose step is not 2 ms, a motor strength outside (0, 2], a bad fault, an existing
             ``record`` file without ``overwrite``, a port that cannot be bound.
     """
 
     def __init__(self, plant, events, host: str = "127.0.0.1", port: int = 0, pose_to=None, faults=(),
                  record=None, base_body: str = "Go1_body", box_body: str = "Box_body",
                  pose_latency: float = 0.0, pose_noise=(0.0, 0.0), seed: int = 0, overwrite: bool = False,
-                 view=None, on_event=None, task_delay: float = 2.0):
+                 view=None, on_event=None, task_delay: float = 2.0, motor_strength: float = 1.0):
         dt = plant.model.opt.timestep
+        if not 0 < motor_strength <= 2:
+            raise AmheError(f"motor strength {motor_strength}: expected the share of the commanded torque the "
+                            "motors deliver, in (0, 2]")
+        self.motor_strength = float(motor_strength)
         if abs(dt - TICK) > 1e-9:
             raise AmheError(f"emulator plant steps at {dt * 1e3:g} ms: expected {TICK * 1e3:g} ms")
         self.plant = plant
@@ -460,7 +469,7 @@ class Go1Emulator:
                 self.view.log(self.time, f"emulator: {len(fired)} task event(s) fired "
                               f"(truth now {self.plant.truth_values})", "info")
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
-        self._tau = motor_torques(self._cmd, q, dq, self.limit)
+        self._tau = motor_torques(self._cmd, q, dq, self.limit, self.motor_strength)
         d.qfrc_applied[:] = 0.0
         d.qfrc_applied[self._jv] = self._tau
         mujoco.mj_step(m, d)
