@@ -154,7 +154,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                                             "--mode", mode, "--arm", "--json", "--duration", str(duration),
                                             "--seed", str(seed), "--out", recording, "--force",
                                             *(["--config", args.config] if args.config else []),
-                                            *(["--threads", str(args.threads)] if args.threads else [])],
+                                            *(["--threads", str(args.threads)] if args.threads else []),
+                                            *shlex.split(args.run_args)],
                               capture_output=True, text=True, timeout=duration + 180)
         wall = time.monotonic() - t0
     finally:
@@ -179,6 +180,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                **({"threads": args.threads} if args.threads else {}),
                **({"label": args.label} if args.label else {}),
                **({"emulator_args": args.emulator_args} if args.emulator_args else {}),
+               **({"run_args": args.run_args} if args.run_args else {}),
                emulator=emulator,
                fell=bool(res.get("fell")) or "tilt" in text or "fell" in text,
                trip="safety" in text or "no valid robot state" in text or "torque" in text or "power" in text)
@@ -276,6 +278,9 @@ def main() -> None:
     ap.add_argument("--emulator-args", default="",
                     help="more arguments for amhe emulate go1, given with '=': a robot unlike its model, "
                          "--emulator-args='--robot trunk_payload=1.5 --motor-strength 0.85' (kept in each row)")
+    ap.add_argument("--run-args", default="",
+                    help="more arguments for amhe run, given with '=': --run-args='--belief robot.belief.yaml' "
+                         "(kept in each row)")
     ap.add_argument("--label", default=None,
                     help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
                          "rows with different labels apart")

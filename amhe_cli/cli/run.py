@@ -78,7 +78,7 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     and the exit status is non-zero.
     """
     from amhe_cli.cli.plot import plot_run
-    from amhe_cli.control.closed_loop import run_task, save_run
+    from amhe_cli.control.closed_loop import run_robot_side, run_task, save_run
     from amhe_cli.control.evaluate import load_config, probe_belief, run_settings
 
     cfg = load_config(config)
@@ -133,6 +133,10 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
             if talk:
                 click.echo(f"starting belief: {belief_text(start)}; saved to {probe_path} (next time: --belief "
                            f"{probe_path})", err=True)
+        if talk and mode != "true":  # a robot unlike the model, as the belief has it
+            side = run_robot_side(settings, start, {})
+            if side.source:
+                click.echo(side.source, err=True)
         bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
         try:
             result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant,

@@ -60,6 +60,7 @@ from amhe_cli.control.gait import GAITS
 from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
+from amhe_cli.control.robot_side import RobotSide, robot_side
 from amhe_cli.model.rollout import default_threads
 from amhe_cli.model.scene import Scene, SceneConfig
 from amhe_cli.control.tasks import Task
@@ -304,10 +305,13 @@ class RunResult:
         return out
 
 
-def task_scene_config(task: Task, dt: float, kp: float = 55.0, kd: float = 3.0) -> SceneConfig:
-    """Scene of a task at timestep ``dt``: uniform floor, the task's box (nominal mass from its truth), PD gains."""
+def task_scene_config(task: Task, dt: float, kp: float | tuple = 55.0, kd: float | tuple = 3.0,
+                      trunk_payload: float = 0.0) -> SceneConfig:
+    """Scene of a task at timestep ``dt``: uniform floor, the task's box (nominal mass from its truth), PD gains
+    (one for every joint, or (12,)) and a trunk payload [kg] (a robot unlike the model: :mod:`robot_side`)."""
+    kp, kd = (tuple(float(x) for x in np.broadcast_to(np.asarray(g, dtype=float), (12,))) for g in (kp, kd))
     return SceneConfig(box_size=TASK_BOX_SIZE, box_mass=float(task.truth.get("box_mass", 3.7)), timestep=dt,
-                       kp=(float(kp),) * 12, kd=(float(kd),) * 12)
+                       kp=kp, kd=kd, trunk_payload=float(trunk_payload))
 
 
 def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, realtime: bool = False,
@@ -322,13 +326,15 @@ def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, r
 
 
 def make_estimator(task: Task, settings: "RunSettings", record_dt: float, prior: dict, prior_std: dict | None = None,
-                   nthread: int = 1, duty: float = 1.0) -> MovingHorizonEstimator:
+                   nthread: int = 1, duty: float = 1.0, side: RobotSide | None = None) -> MovingHorizonEstimator:
     """The online MHE of an ``adaptive`` run (paper §IV-A): the task's scene on the plant's recording grid
     ``record_dt`` [s], ``settings.mhe_params`` free around ``prior`` (name -> value; ``prior_std`` name ->
     σ, None: the nominal σ), ``settings.mhe`` seeded with the run's seed, ``nthread`` rollout threads and
-    ``duty``, the share of a core :func:`core_split` gives it (what ``MHESettings.fill`` sizes updates to).
+    ``duty``, the share of a core :func:`core_split` gives it (what ``MHESettings.fill`` sizes updates to);
+    the robot's servo and payload ``side`` (:func:`~amhe_cli.control.robot_side.robot_side`; None: nominal).
     """
-    scene = Scene(task_scene_config(task, record_dt, settings.kp, settings.kd))
+    side = side or robot_side(settings.kp, settings.kd)
+    scene = Scene(task_scene_config(task, record_dt, side.kp, side.kd, side.trunk_payload))
     space = ParameterSpace(scene, free=settings.mhe_params, prior=prior, prior_std=prior_std)
     mhe = MovingHorizonEstimator(scene, space, replace(settings.mhe, seed=settings.seed), nthread=nthread)
     mhe.duty = duty
@@ -392,12 +398,14 @@ def describe_split(settings: "RunSettings", clocked: bool, cpus: int | None = No
 
 
 def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
-                 truth: dict, nthread: int | None = None) -> tuple[Planner, ParameterSpace]:
+                 truth: dict, nthread: int | None = None, side: RobotSide | None = None) -> tuple[Planner, ParameterSpace]:
     """The planner of a run and its parameter space.
 
     The planner's scene is the task's nominal scene at the planner's timestep;
     only its parameters depend on the mode: the plant's ``truth`` for ``true``,
-    the belief's values otherwise. Nothing of the plant's model is passed.
+    the belief's values otherwise, the robot's own side (servo, trunk payload,
+    robot–box friction) included (``side``; None: :func:`run_robot_side`). Nothing
+    of the plant's model is passed.
 
     Raises:
         AmheError: a mode other than ``true`` without a belief.
@@ -405,11 +413,22 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
     s = settings
     if s.mode != "true" and belief is None:
         raise AmheError(f"mode {s.mode} needs a starting belief (--belief, or let run probe first)")
-    pscene = Scene(task_scene_config(task, s.planner.dt, s.kp, s.kd))
+    side = side or run_robot_side(s, belief, truth)
+    pscene = Scene(task_scene_config(task, s.planner.dt, side.kp, side.kd, side.trunk_payload))
     prior = {k: v for k, v in (truth if s.mode == "true" else belief.values).items() if k in RUN_PARAMS}
+    if side.robot_box_friction is not None:
+        prior["robot_box_friction"] = side.robot_box_friction
     space = ParameterSpace(pscene, free=RUN_PARAMS, prior=prior,
                            prior_std=None if s.mode == "true" else _belief_std(belief))
     return Planner(pscene, space, task, s.planner, nthread=nthread or s.threads, seed=s.seed), space
+
+
+def run_robot_side(settings: "RunSettings", belief: Belief | None, truth: dict) -> RobotSide:
+    """The robot side of a run's planner and MHE (:func:`~amhe_cli.control.robot_side.robot_side`): from the
+    plant's ``truth`` in ``true`` mode, else from the belief."""
+    if settings.mode == "true":
+        return robot_side(settings.kp, settings.kd, truth=truth)
+    return robot_side(settings.kp, settings.kd, belief=belief)
 
 
 def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float,
@@ -503,10 +522,13 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             raise AmheError("mode true needs the plant's true parameters, and this plant has none "
                             "(a real robot): use --mode baseline or adaptive")
         planner_threads, mhe_threads, mhe_duty = core_split(s, clocked)
-        planner, space = make_planner(task, s, belief, plant.truth_values or {}, nthread=planner_threads)
+        side = run_robot_side(s, belief, plant.truth_values or {})
+        if side.source:
+            note(side.source)
+        planner, space = make_planner(task, s, belief, plant.truth_values or {}, nthread=planner_threads, side=side)
         if s.mode == "adaptive":
             estimator = EstimatorThread(make_estimator(task, s, plant.record_dt, space.values(space.mean0),
-                                                       _belief_std(belief), mhe_threads, mhe_duty))
+                                                       _belief_std(belief), mhe_threads, mhe_duty, side))
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
                 note(describe_split(s, clocked))
