@@ -139,12 +139,12 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
 
     fault_list = [parse_fault(f) for f in faults]
     noise = parse_pose_noise(pose_noise)
-    robot_side = parse_robot(robot)
+    robot_truth = parse_robot(robot)
     target = None if pose_to.strip().lower() == "off" else parse_address(pose_to, POSE_STREAM_PORT)
     check_live(live)
     t = get_task(task)
     plant = make_plant(t, _SCENE_KP, _SCENE_KD)
-    for name, value in robot_side.items():  # the robot's own truth, never shown to the client
+    for name, value in robot_truth.items():  # the robot's own truth, never shown to the client
         plant.set_param(name, value)
     server = view = None
     if live is not None:  # the emulated robot's true state, as the plant's own view
@@ -164,7 +164,7 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     poses = (f"poses to udp://{target[0]}:{target[1]} ({base_body}, {box_body})" if target is not None
              else "poses off")
     extra = f", faults {' '.join(f'{f.kind}@{f.t:g}' for f in fault_list)}" if fault_list else ""
-    unlike = [f"{k} {v:g}" for k, v in robot_side.items()] + (
+    unlike = [f"{k} {v:g}" for k, v in robot_truth.items()] + (
         [f"motor strength {motor_strength:g}"] if motor_strength != 1.0 else [])
     extra += f", robot unlike its model: {', '.join(unlike)}" if unlike else ""
     click.echo(f"amhe emulate go1: listening on udp://{bh}:{bp}, {poses}, task {t.name}{extra}")
