@@ -244,6 +244,24 @@ def test_dry_run_sends_damping_only_and_logs_the_would_be_targets():
     assert relay.would_send and np.allclose(relay.would_send[-1][1], STAND_JOINTS + 0.02, atol=1e-3)
 
 
+def test_damping_is_final_whatever_the_relay_thread_chose_before_it():
+    """An outside damp() racing the relay thread: the thread may have chosen "run" (or "ramp") a moment
+    before; its phase change must not undo the damping (a CI run once saw a servo packet after damp())."""
+    link = FakeLink()
+    relay = run_relay(link)
+    try:
+        assert relay.wait_ready(2.0)
+        relay.damp("planner crashed")
+        for phase in ("run", "ramp", "ready", "stand", "hold"):
+            relay._set_phase(phase)
+            assert relay.phase == "damp"
+        n = len(link.sent)
+        time.sleep(0.02)
+        assert len(link.sent) > n and all((c.mode == MODE_DAMPING).all() for _, c in link.sent[n:])
+    finally:
+        relay.stop()
+
+
 def test_damp_from_outside_keeps_the_first_reason_and_stop_sends_a_burst():
     link = FakeLink()
     relay = run_relay(link)

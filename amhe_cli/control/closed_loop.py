@@ -397,8 +397,8 @@ def describe_split(settings: "RunSettings", clocked: bool, cpus: int | None = No
                                      f"one thread sharing them, busy at most {duty:.0%} of a core") + " (mhe_cores)"
 
 
-def make_planner(task: Task, settings: "RunSettings", belief: Belief | None,
-                 truth: dict, nthread: int | None = None, side: RobotSide | None = None) -> tuple[Planner, ParameterSpace]:
+def make_planner(task: Task, settings: "RunSettings", belief: Belief | None, truth: dict,
+                 nthread: int | None = None, side: RobotSide | None = None) -> tuple[Planner, ParameterSpace]:
     """The planner of a run and its parameter space.
 
     The planner's scene is the task's nominal scene at the planner's timestep;

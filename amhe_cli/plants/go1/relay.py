@@ -131,6 +131,7 @@ class Relay:
         self.ready = threading.Event()
         self.failed = threading.Event()
         self._lock = threading.Lock()
+        self._send_lock = threading.Lock()  # a command's choice and send, against an outside damp()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._plan: tuple[np.ndarray, float, float] | None = None  # (controls (H, 12), dt, t0)
@@ -191,8 +192,13 @@ class Relay:
         return out
 
     def damp(self, reason: str) -> None:
-        """Enter damping now (an error elsewhere, Ctrl-C); the first reason given is kept."""
-        self._trip(reason)
+        """Enter damping now (an error elsewhere, Ctrl-C); the first reason given is kept.
+
+        Once this returns, the relay sends damping packets only: it waits for a command being chosen
+        and sent to go out, and the relay thread's own phase changes cannot leave ``damp``.
+        """
+        with self._send_lock:
+            self._trip(reason)
 
     def stop(self) -> None:
         """End the relay: damping packets (a burst), then the thread stops. Safe to call twice."""
@@ -213,8 +219,9 @@ class Relay:
 
     # -- the relay thread -------------------------------------------------------
     def _set_phase(self, phase: str, note: str = "") -> None:
-        """Change phase; entering or leaving a fallback (hold, stand, damp) is logged in :attr:`messages`."""
-        if phase != self.phase:
+        """Change phase; entering or leaving a fallback (hold, stand, damp) is logged in :attr:`messages`.
+        ``damp`` is final: a phase change the relay thread chose before an outside :meth:`damp` does not undo it."""
+        if phase != self.phase and self.phase != "damp":
             if phase in ("hold", "stand", "damp") or self.phase in ("hold", "stand"):
                 self.messages.append(f"relay {self.phase} -> {phase}" + (f": {note}" if note else ""))
             self.phase = phase
@@ -296,23 +303,24 @@ class Relay:
                         self._trip(str(trip))
             elif self.phase not in ("wait", "damp") and received - self.state_time > s.state_timeout:
                 self._trip(f"no valid robot state for {1e3 * (received - self.state_time):.0f} ms (link lost)")
-            if self.phase in ("wait", "damp"):
-                cmd, q_sent, mode = damping, None, MODE_DAMPING
-            else:
-                q, kp, kd, mode = self._target_dry(now) if self.phase == "dry" else self._target(now, state)
-                q, kp, kd = self.safety.filter(q, self._q_prev, kp, kd, self.period)
-                if self.dry_run:
-                    self.would_send.append((now, q.copy()))
+            with self._send_lock:  # damp() from another thread waits for this command, then wins
+                if self.phase in ("wait", "damp"):
                     cmd, q_sent, mode = damping, None, MODE_DAMPING
                 else:
-                    self._q_prev = q
-                    cmd = LowCmd(mode=np.full(12, mode, dtype=np.uint8), q=q, dq=np.zeros(12), tau=np.zeros(12),
-                                 kp=kp if mode == MODE_SERVO else np.zeros(12), kd=kd)
-                    q_sent = q
-            try:
-                self.link.send(cmd)
-            except Exception as exc:  # noqa: BLE001
-                self._trip(f"robot link failed: {exc}")
+                    q, kp, kd, mode = self._target_dry(now) if self.phase == "dry" else self._target(now, state)
+                    q, kp, kd = self.safety.filter(q, self._q_prev, kp, kd, self.period)
+                    if self.dry_run:
+                        self.would_send.append((now, q.copy()))
+                        cmd, q_sent, mode = damping, None, MODE_DAMPING
+                    else:
+                        self._q_prev = q
+                        cmd = LowCmd(mode=np.full(12, mode, dtype=np.uint8), q=q, dq=np.zeros(12), tau=np.zeros(12),
+                                     kp=kp if mode == MODE_SERVO else np.zeros(12), kd=kd)
+                        q_sent = q
+                try:
+                    self.link.send(cmd)
+                except Exception as exc:  # noqa: BLE001
+                    self._trip(f"robot link failed: {exc}")
             if self.on_tick is not None:
                 try:
                     self.on_tick(now, state, q_sent, mode)
