@@ -207,7 +207,10 @@ def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
     # first 4 ms past 0.15 s still carry the push, on a day the machine ran the suite 1.7x slower)
     held = valid & (t > t_freeze + 0.2) & (mode == SERVO).all(axis=1)
     assert held.sum() > 50
-    assert np.abs(q[held] - STAND_JOINTS).max() < 0.02  # the stand, not the plan
+    off = np.abs(q[held] - STAND_JOINTS).max(axis=1)
+    worst = int(np.argmax(off))  # where and when, for a failure on a loaded machine (CI saw 0.050 rad once)
+    assert off[worst] < 0.02, (f"{off[worst]:.3f} rad off the stand {t[held][worst] - t_freeze:.3f} s after the "
+                               f"freeze ({int((off >= 0.02).sum())} of {off.size} held commands); {emu.summary}")
     assert read_log(str(out)).duration > 1.0
 
 
