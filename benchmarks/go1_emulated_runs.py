@@ -44,8 +44,8 @@ import argparse
 import json
 import os
 import re
-import socket
 import shlex
+import socket
 import subprocess
 import sys
 import threading

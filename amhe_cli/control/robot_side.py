@@ -23,7 +23,7 @@ the weighed payload.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -69,8 +69,7 @@ def robot_side(kp: float, kd: float, belief: Belief | None = None, truth: dict |
         out = RobotSide((kp * share_kp,) * 12, (kd * share_kd,) * 12, float(np.mean(truth.get("trunk_payload", 0.0))),
                         _scalar(truth.get("robot_box_friction")))
         differs = abs(share_kp - 1) > 1e-9 or abs(share_kd - 1) > 1e-9 or out.trunk_payload != 0.0
-        return RobotSide(out.kp, out.kd, out.trunk_payload, out.robot_box_friction,
-                         _describe(out, share_kp, share_kd, "the truth") if differs else "")
+        return replace(out, source=_describe(out, share_kp, share_kd, "the truth") if differs else "")
     if belief is None:
         return nominal
     shares, note = _servo_shares(belief)
@@ -79,8 +78,7 @@ def robot_side(kp: float, kd: float, belief: Belief | None = None, truth: dict |
                     _scalar(belief.values.get("robot_box_friction")))
     differs = bool(np.any(np.abs(shares - 1) > 1e-6)) or payload != 0.0
     text = _describe(out, float(np.mean(shares[0])), float(np.mean(shares[1])), "the belief") if differs else ""
-    return RobotSide(out.kp, out.kd, out.trunk_payload, out.robot_box_friction,
-                     "; ".join(t for t in (text, note) if t))
+    return replace(out, source="; ".join(t for t in (text, note) if t))
 
 
 def _servo_shares(belief: Belief) -> tuple[np.ndarray, str]:

@@ -361,10 +361,9 @@ class Task:
         along, lateral = float(rel @ d), float(rel @ normal)
         reach = half_depth + HEAD_REACH
         push_yaw = float(np.arctan2(d[1], d[0]))
-        # the box's rear extent along the push: its footprint turned by its yaw (a square box turned 45° reaches
-        # √2 times its half depth back), so that a robot beside a turned box's corner is not taken as behind it
-        c, s_ = np.cos(box_yaw), np.sin(box_yaw)
-        rear = half_depth * abs(d[0] * c + d[1] * s_) + half_width * abs(d[1] * c - d[0] * s_)
+        # the box's rear extent along the push, its footprint turned: a robot beside a turned box's corner
+        # is not behind it
+        rear = box_half_extent(d, box_yaw, half_depth, half_width)
         inset = PHASE_HYSTERESIS if phase == "approach" else 0.0
         behind = -(reach + PUSH_ZONE[1]) + inset <= along <= -(rear + PUSH_ZONE[0]) - inset
         if behind and abs(lateral) <= half_width + LINE_TOLERANCE - inset:
@@ -591,6 +590,16 @@ def box_nearest(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x
     lx = np.clip(c * dx + s_ * dy, -half_x, half_x)
     ly = np.clip(-s_ * dx + c * dy, -half_y, half_y)
     return np.asarray(box_xy, float) + [c * lx - s_ * ly, s_ * lx + c * ly]
+
+
+def box_half_extent(direction: np.ndarray, box_yaw: float, half_x: float, half_y: float) -> float:
+    """Half the extent [m] of a box's footprint (half extents ``half_x``, ``half_y`` [m] along its own axes,
+    turned by ``box_yaw`` [rad]) along the unit ``direction`` (2,): ``half_x |cos θ| + half_y |sin θ|`` with θ
+    the angle between them (a square box turned 45° reaches √2 times its half depth)."""
+    c, s_ = np.cos(box_yaw), np.sin(box_yaw)
+    along_x = direction[0] * c + direction[1] * s_  # the direction in the box's own axes
+    along_y = direction[1] * c - direction[0] * s_
+    return float(half_x * abs(along_x) + half_y * abs(along_y))
 
 
 def box_clearance(point_xy: np.ndarray, box_xy: np.ndarray, box_yaw: float, half_x: float,
