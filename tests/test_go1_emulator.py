@@ -164,6 +164,7 @@ def test_silent_until_a_valid_command_then_holds_a_commanded_pose(started):
     emu, link = started()
     assert link.recv(0.15) is None                       # no handshake: nothing before a command
     assert emu.stats.sent == 0 and emu.stats.ticks > 40  # ... though the plant runs
+    ran_ms = emu.time * 1000.0                           # plant time before the first command
     target = STAND_JOINTS + np.tile([0.0, -0.15, 0.25], 4)   # a higher stance than the start
     states = drive(link, servo(target), 1.2)
     assert len(states) > 150
@@ -180,7 +181,9 @@ def test_silent_until_a_valid_command_then_holds_a_commanded_pose(started):
     np.testing.assert_allclose(st.accelerometer, [0, 0, 9.81], atol=0.15)
     assert (st.foot_force > 15).all() and abs(st.foot_force.sum() - 12.7 * 9.81) < 15
     ticks = np.array([s.tick for s in states])
-    assert (np.diff(ticks) > 0).all() and ticks[0] >= 150    # ms since start, not since the first command
+    # ms of plant time since start, not since the first command (the plant's clock, not the
+    # wall's: under load it runs behind the wall, so the bound is what it had run before)
+    assert (np.diff(ticks) > 0).all() and ticks[0] >= ran_ms > 80
 
 
 def test_damping_torque_opposes_joint_velocity(started):
