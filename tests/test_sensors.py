@@ -16,7 +16,8 @@ import pytest
 
 from amhe_cli.control.maneuver import lunge_schedule
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.clips import REST_FLOOR, box_travel, robot_box_clear, sample_rest_clips
+from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
+                                      sample_rest_clips)
 from amhe_cli.estimation.gains import applied_gains, fit_gains
 from amhe_cli.estimation.payload import fit_payload
 from amhe_cli.estimation.identify import IdentifySettings, identify
@@ -211,10 +212,33 @@ def test_rest_clips_keep_the_box_still_and_out_of_the_robots_reach(heavy_robot_l
     assert np.all(box_travel(heavy_robot_log, clips.start, clips.horizon) <= REST_FLOOR)
     assert np.all(robot_box_clear(heavy_robot_log, scene, clips.start, int(clips.horizon.max())))
     assert np.all(ends < len(heavy_robot_log))
-    # the lunge log with the box at the head plate: the robot is always within reach, so no clip
+    # the lunge log with the box at the head plate: no clip through a bump (the head on the box) or from
+    # the start (1.4 cm apart); once the bumps have pushed the box off, the robot stands 6-17 cm from it
     near = _lunge_log()
-    assert not robot_box_clear(near, scene, np.arange(0, len(near) - 100, 50), 100).any()
-    assert sample_rest_clips(near, scene, 16) is None
+    starts = np.arange(0, len(near) - 100, 50)
+    clear = robot_box_clear(near, scene, starts, 100)
+    qpos = scene.qpos_qvel(near)[0]
+    touching = np.array([scene.robot_box_gap(qpos[s:s + 101:5]).min() < 0.01 for s in starts])
+    assert not clear[0] and touching.any() and not clear[touching].any()
+    assert clear[-1] and scene.robot_box_gap(qpos[-1:])[0] > 0.1
+    drawn = sample_rest_clips(near, scene, 16, rng=np.random.default_rng(0))
+    assert drawn is not None and (scene.robot_box_gap(qpos[drawn.start]) > CLEAR_GAP).all()
+
+
+def test_a_robot_near_the_box_but_not_touching_it_tells_its_payload():
+    """The box 0.15 m ahead of the head plate, inside the robot's reach radius until the last, deepest
+    lunge pushes it off: the clips of the robot's lunges clear of it are kept by the geometry (the radius
+    alone kept only those after the push) and the payload is fitted as with the box far away."""
+    log = _lunge_log(payload=0.6, box_xy=(0.28 + 0.19 + 0.15, 0.0))
+    scene = Scene(SceneConfig())
+    reach = np.linalg.norm(log.base_pos[:, :2] - log.box_pos[:, :2], axis=1)
+    inside = reach < ROBOT_REACH + 0.5 * np.hypot(0.38, 0.38)
+    assert inside[:int(5.0 / log.dt)].all()  # the first two lunges, within the radius
+    assert (scene.robot_box_gap(scene.qpos_qvel(log)[0][::50]) < CLEAR_GAP).any()  # and touched
+    fit = fit_payload(log, scene, nthread=2)
+    assert fit is not None and fit.clips == 32
+    assert fit.value == pytest.approx(0.6, abs=0.03), fit
+    assert (sample_rest_clips(log, scene, 32).start < int(5.0 / log.dt)).sum() > 8  # most from those lunges
 
 
 def test_a_robot_unlike_its_model_gets_its_payload_and_robot_box_friction(tmp_path, heavy_robot_log):

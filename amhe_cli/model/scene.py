@@ -147,6 +147,7 @@ class Scene:
         m = self.model
         self.box_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "box")
         self._feet_kin = None  # (MjData, foot geom ids) for foot_centres, made on first use
+        self._gap_kin = None  # (MjData, box geom, robot geoms) for robot_box_gap, made on first use
         self.region_pairs = np.array(
             [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_PAIR, f"box_floor_{i}") for i in range(len(self.config.regions))]
         )
@@ -226,6 +227,27 @@ class Scene:
             d.qpos[:] = q
             mujoco.mj_kinematics(m, d)
             out[i] = d.geom_xpos[gids]
+        return out
+
+    def robot_box_gap(self, qpos: np.ndarray, distmax: float = 0.5) -> np.ndarray:
+        """(N,) smallest distance [m] between the robot's geoms that can touch the box and the box, for (N, nq)
+        states (negative: penetrating; ``distmax`` where farther). ``mujoco.mj_geomDistance`` after
+        ``mj_kinematics``, over the robot's collision geoms whose contype/conaffinity meet the box's: about
+        70 µs a state on one core."""
+        m = self.model
+        if getattr(self, "_gap_kin", None) is None:
+            box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "box")
+            root = m.body_rootid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "trunk")]
+            robot = [g for g in range(m.ngeom) if m.body_rootid[m.geom_bodyid[g]] == root
+                     and (m.geom_contype[g] & m.geom_conaffinity[box] or m.geom_conaffinity[g] & m.geom_contype[box])]
+            self._gap_kin = (mujoco.MjData(m), box, robot)
+        d, box, robot = self._gap_kin
+        qpos = np.atleast_2d(qpos)
+        out = np.empty(len(qpos))
+        for i, q in enumerate(qpos):
+            d.qpos[:] = q
+            mujoco.mj_kinematics(m, d)
+            out[i] = min(mujoco.mj_geomDistance(m, d, g, box, distmax, None) for g in robot)
         return out
 
     def foot_bottoms(self, qpos: np.ndarray) -> np.ndarray:
