@@ -668,7 +668,8 @@ def test_modes_differ_only_in_planner_parameters():
 def test_a_belief_of_a_robot_unlike_its_model_gives_the_planner_and_the_mhe_that_robot():
     """An emulated Go1 with 1.5 kg on its trunk, head-plate friction 0.8 and motors at 85 % fell in 13 of 64
     runs planned with the nominal robot; identify read its servo from the joint efforts (Kp 82–85 acting for
-    100 commanded) and its payload. The belief's robot side reaches both models; a belief that cannot say
+    100 commanded), its motors' limits where the efforts plateau and its payload. The belief's robot side
+    (torque limits included) reaches both models; a belief that cannot say
     what share of the commanded gains acts leaves the servo as commanded."""
     from amhe_cli.control.closed_loop import make_estimator, run_robot_side
     from amhe_cli.control.robot_side import robot_side
@@ -676,10 +677,12 @@ def test_a_belief_of_a_robot_unlike_its_model_gives_the_planner_and_the_mhe_that
     s = small_settings("baseline")
     b = Belief(values={"box_mass": 4.0, "box_friction": 0.5, "trunk_payload": 1.5, "robot_box_friction": 0.8},
                std={"box_mass": 0.5, "box_friction": 0.05}, free=["box_mass", "box_friction"],
-               scene={"kp": [0.85 * s.kp] * 12, "kd": [0.85 * s.kd] * 12},
+               scene={"kp": [0.85 * s.kp] * 12, "kd": [0.85 * s.kd] * 12,
+                      "torque_limit": [20.1, 20.1, 30.2] * 4},
                provenance={"sensors": {"gains": {"logged_kp": [s.kp] * 12, "logged_kd": [s.kd] * 12}}})
     side = run_robot_side(s, b, {})
     assert "servo 0.85 × Kp, 0.85 × Kd" in side.source and "+1.50 kg" in side.source
+    assert "torque limits 20.1–30.2 N·m" in side.source
     nominal, _ = make_planner(task, s, belief(4.0, 0.5), {})
     planner, _ = make_planner(task, s, b, {}, side=side)
     mhe = make_estimator(task, replace(s, mode="adaptive"), 0.002, {"box_mass": 4.0, "box_friction": 0.5,
@@ -690,6 +693,8 @@ def test_a_belief_of_a_robot_unlike_its_model_gives_the_planner_and_the_mhe_that
             assert m.body_mass[trunk] == pytest.approx(nominal._models[0].body_mass[trunk] + 1.5)
             np.testing.assert_allclose(m.actuator_gainprm[:, 0], 0.85 * s.kp)
             np.testing.assert_allclose(-m.actuator_biasprm[:, 2], 0.85 * s.kd)
+            np.testing.assert_allclose(m.actuator_forcerange[:, 1], [20.1, 20.1, 30.2] * 4)
+        np.testing.assert_allclose(nominal._models[0].actuator_forcerange[:, 1], [23.7, 23.7, 35.55] * 4)
         pm, nm = planner._models[0], nominal._models[0]
         changed = nm.geom_friction[:, 0] != pm.geom_friction[:, 0]
         assert changed.any() and np.all(pm.geom_friction[changed, 0] == pytest.approx(0.8))

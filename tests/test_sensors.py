@@ -18,7 +18,7 @@ from amhe_cli.control.maneuver import lunge_schedule
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
                                       sample_rest_clips)
-from amhe_cli.estimation.gains import applied_gains, fit_gains
+from amhe_cli.estimation.gains import applied_gains, applied_limit, fit_gains
 from amhe_cli.estimation.payload import fit_payload
 from amhe_cli.estimation.identify import IdentifySettings, identify
 from amhe_cli.estimation.problem import example_logs, load_problem
@@ -73,6 +73,51 @@ def test_gain_fit_agrees_silently_and_needs_efforts():
     assert warns == [] and np.allclose(kp, 55.0) and np.allclose(kd, 3.0)
     traj.joint_effort = None
     assert fit_gains(traj) is None
+
+
+def _weak_motor_log(share):
+    """The lunge probe by a robot whose motors give ``share`` of the model's torque limits."""
+    plant = SimPlant(SceneConfig(torque_limit=tuple(share * MODEL_LIMIT)), truth=dict(TRUTH))
+    q, _ = plant.scene.standing_state(box_xy=(1.5, 0.0))
+    plant.reset(q)
+    for u in lunge_schedule():
+        plant.step(u)
+    traj = plant.trajectory()
+    traj.kp, traj.kd = np.full(12, 55.0), np.full(12, 3.0)
+    return traj
+
+
+MODEL_LIMIT = np.tile([23.7, 23.7, 35.55], 4)
+
+
+def test_efforts_that_plateau_below_the_models_limit_give_the_motors_limit(tmp_path):
+    """Motors at half the model's torque: the thighs' efforts plateau at 11.85 N·m through the lunges, the
+    fit reads it there and models every joint at that share (one motor type); the model's own motors,
+    and efforts that never plateau, leave the limits alone. The scene carries it as its force range."""
+    weak = _weak_motor_log(0.5)
+    fit = fit_gains(weak)
+    seen = np.isfinite(fit.limit)
+    assert seen[[1, 4]].all() and not seen[[0, 2, 3, 5]].any()  # the front thighs; hips and knees never reach it
+    np.testing.assert_allclose(fit.limit[seen], 11.85, rtol=0.01)
+    limit, warns = applied_limit(fit, MODEL_LIMIT)
+    np.testing.assert_allclose(limit, 0.5 * MODEL_LIMIT, rtol=0.01)
+    assert len(warns) == 1 and "50%" in warns[0] and "FR_thigh_joint" in warns[0]
+    assert applied_limit(fit_gains(_weak_motor_log(1.0)), MODEL_LIMIT) == (None, [])
+    assert applied_limit(None, MODEL_LIMIT) == (None, [])
+    # the scene: its force range, through a belief's dict and back
+    config = SceneConfig(torque_limit=limit)
+    assert SceneConfig.from_dict(config.to_dict()) == config
+    np.testing.assert_allclose(Scene(config).model.actuator_forcerange[:, 1], limit)
+    with pytest.raises(AmheError, match="torque limits"):
+        Scene(SceneConfig(torque_limit=(0.0,) * 12))
+    # a log of it: load_problem models the limit and says so
+    path = write_mcap(tmp_path / "weak.mcap", replace(weak, meta={}))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        problem = load_problem(str(path), nthread=2, payload=False)
+    assert any("plateau at 50%" in str(w.message) for w in caught)
+    np.testing.assert_allclose(problem.scene.config.torque_limit, 0.5 * MODEL_LIMIT, rtol=0.01)
+    assert "motor torque limits" in problem.robot_differs
 
 
 def test_a_kd_fit_a_few_percent_low_is_velocity_noise_not_another_servo():

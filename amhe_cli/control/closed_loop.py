@@ -306,12 +306,13 @@ class RunResult:
 
 
 def task_scene_config(task: Task, dt: float, kp: float | tuple = 55.0, kd: float | tuple = 3.0,
-                      trunk_payload: float = 0.0) -> SceneConfig:
+                      trunk_payload: float = 0.0, torque_limit: tuple | None = None) -> SceneConfig:
     """Scene of a task at timestep ``dt``: uniform floor, the task's box (nominal mass from its truth), PD gains
-    (one for every joint, or (12,)) and a trunk payload [kg] (a robot unlike the model: :mod:`robot_side`)."""
+    (one for every joint, or (12,)), a trunk payload [kg] and (12,) motor torque limits [N·m] (None: the
+    model's) — a robot unlike the model: :mod:`robot_side`."""
     kp, kd = (tuple(float(x) for x in np.broadcast_to(np.asarray(g, dtype=float), (12,))) for g in (kp, kd))
     return SceneConfig(box_size=TASK_BOX_SIZE, box_mass=float(task.truth.get("box_mass", 3.7)), timestep=dt,
-                       kp=kp, kd=kd, trunk_payload=float(trunk_payload))
+                       kp=kp, kd=kd, trunk_payload=float(trunk_payload), torque_limit=torque_limit)
 
 
 def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, realtime: bool = False,
@@ -331,10 +332,11 @@ def make_estimator(task: Task, settings: "RunSettings", record_dt: float, prior:
     ``record_dt`` [s], ``settings.mhe_params`` free around ``prior`` (name -> value; ``prior_std`` name ->
     σ, None: the nominal σ), ``settings.mhe`` seeded with the run's seed, ``nthread`` rollout threads and
     ``duty``, the share of a core :func:`core_split` gives it (what ``MHESettings.fill`` sizes updates to);
-    the robot's servo and payload ``side`` (:func:`~amhe_cli.control.robot_side.robot_side`; None: nominal).
+    the robot's servo, payload and torque limits ``side`` (:func:`~amhe_cli.control.robot_side.robot_side`;
+    None: nominal).
     """
     side = side or robot_side(settings.kp, settings.kd)
-    scene = Scene(task_scene_config(task, record_dt, side.kp, side.kd, side.trunk_payload))
+    scene = Scene(task_scene_config(task, record_dt, side.kp, side.kd, side.trunk_payload, side.torque_limit))
     space = ParameterSpace(scene, free=settings.mhe_params, prior=prior, prior_std=prior_std)
     mhe = MovingHorizonEstimator(scene, space, replace(settings.mhe, seed=settings.seed), nthread=nthread)
     mhe.duty = duty
@@ -404,7 +406,7 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None, tru
     The planner's scene is the task's nominal scene at the planner's timestep;
     only its parameters depend on the mode: the plant's ``truth`` for ``true``,
     the belief's values otherwise, the robot's own side (servo, trunk payload,
-    robot–box friction) included (``side``; None: :func:`run_robot_side`). Nothing
+    robot–box friction, torque limits) included (``side``; None: :func:`run_robot_side`). Nothing
     of the plant's model is passed.
 
     Raises:
@@ -414,7 +416,7 @@ def make_planner(task: Task, settings: "RunSettings", belief: Belief | None, tru
     if s.mode != "true" and belief is None:
         raise AmheError(f"mode {s.mode} needs a starting belief (--belief, or let run probe first)")
     side = side or run_robot_side(s, belief, truth)
-    pscene = Scene(task_scene_config(task, s.planner.dt, side.kp, side.kd, side.trunk_payload))
+    pscene = Scene(task_scene_config(task, s.planner.dt, side.kp, side.kd, side.trunk_payload, side.torque_limit))
     prior = {k: v for k, v in (truth if s.mode == "true" else belief.values).items() if k in RUN_PARAMS}
     if side.robot_box_friction is not None:
         prior["robot_box_friction"] = side.robot_box_friction

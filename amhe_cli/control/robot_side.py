@@ -12,6 +12,8 @@ trunk, motors that deliver less than commanded) is planned for as it is:
   gains are unknown says nothing about the share: the model keeps the run's gains.
 * **trunk payload** [kg] and **robot–box friction** [-]: the belief's values (``identify`` fits the payload
   where the box rests, or frees it).
+* **motor torque limits** [N·m]: the belief scene's ``torque_limit``, where ``identify`` read the log's joint
+  efforts plateauing below the model's (:func:`~amhe_cli.estimation.gains.applied_limit`).
 
 In ``true`` mode they come from the plant's truth (the sim's robot is its model unless a config's
 ``task: {truth: …}`` says otherwise). *Measured* (docs/evaluation.md, "A robot unlike its model"): an
@@ -42,6 +44,7 @@ class RobotSide:
         kp, kd: (12,) the PD gains [N·m/rad], [N·m·s/rad] the model's servo applies for the run's commanded ones.
         trunk_payload: mass on the trunk beyond the model's [kg].
         robot_box_friction: robot–box friction [-], or None for the scene's nominal.
+        torque_limit: (12,) the motors' torque limits [N·m], or None for the model's.
         source: where it came from, one line for the run's log (empty: the nominal robot).
     """
 
@@ -49,6 +52,7 @@ class RobotSide:
     kd: tuple
     trunk_payload: float = 0.0
     robot_box_friction: float | None = None
+    torque_limit: tuple | None = None
     source: str = ""
 
 
@@ -74,9 +78,12 @@ def robot_side(kp: float, kd: float, belief: Belief | None = None, truth: dict |
         return nominal
     shares, note = _servo_shares(belief)
     payload = float(_scalar(belief.values.get("trunk_payload")) or 0.0)
+    limit = belief.scene.get("torque_limit")
+    if limit is not None:
+        limit = tuple(float(x) for x in np.broadcast_to(np.asarray(limit, float), (12,)))
     out = RobotSide(tuple(float(x) for x in kp * shares[0]), tuple(float(x) for x in kd * shares[1]), payload,
-                    _scalar(belief.values.get("robot_box_friction")))
-    differs = bool(np.any(np.abs(shares - 1) > 1e-6)) or payload != 0.0
+                    _scalar(belief.values.get("robot_box_friction")), limit)
+    differs = bool(np.any(np.abs(shares - 1) > 1e-6)) or payload != 0.0 or limit is not None
     text = _describe(out, float(np.mean(shares[0])), float(np.mean(shares[1])), "the belief") if differs else ""
     return replace(out, source="; ".join(t for t in (text, note) if t))
 
@@ -111,7 +118,13 @@ def _servo_shares(belief: Belief) -> tuple[np.ndarray, str]:
 def _describe(side: RobotSide, share_kp: float, share_kd: float, where: str) -> str:
     return (f"the planner's robot from {where}: servo {share_kp:.2f} × Kp, {share_kd:.2f} × Kd of those commanded, "
             f"trunk payload {side.trunk_payload:+.2f} kg"
-            + (f", robot–box friction {side.robot_box_friction:.2f}" if side.robot_box_friction is not None else ""))
+            + (f", robot–box friction {side.robot_box_friction:.2f}" if side.robot_box_friction is not None else "")
+            + (f", motors' torque limits {_spread(side.torque_limit)} N·m" if side.torque_limit is not None else ""))
+
+
+def _spread(x) -> str:
+    lo, hi = float(np.min(x)), float(np.max(x))
+    return f"{lo:.1f}" if abs(hi - lo) < 0.05 else f"{lo:.1f}–{hi:.1f}"
 
 
 def _scalar(v) -> float | None:

@@ -13,6 +13,17 @@ are not at the torque limit recovers them (``numpy.linalg.lstsq``; ``b_j``
 absorbs an effort-sensor offset and is not used in the model). On a log whose
 robot applied Kp 60 / Kd 2.5 while it logged 55 / 3, ``identify`` with the logged
 gains put the box mass 26 % low; with the fitted ones, within 1 %.
+
+Where the law asks for more than the motor gives, the effort plateaus at the
+motor's limit. A joint whose efforts sit on one level (:data:`PLATEAU_SPREAD`)
+in at least :data:`MIN_SATURATED` samples where the fitted law asks for more
+(:data:`SHORT_FRACTION`, :data:`SHORT_NM`) has its limit read there
+(:attr:`GainFit.limit`). A Go1's twelve motors are one motor (the knee's 1.5 ×
+gearing aside), so :func:`applied_limit` scales every joint's limit by the share
+the saturated ones show: a robot whose motors gave 85 % (``amhe emulate go1
+--motor-strength 0.85``) plateaued at 20.14 N·m on all four thighs, against the
+model's 23.7, and the payload fitted beside the model's limits read 2.97 kg for
+its 1.5 (the heavier trunk stood in for the weaker motors).
 """
 
 from __future__ import annotations
@@ -33,6 +44,12 @@ MIN_SAMPLES = 200
 #: the live recording of an emulated Go1 run the fit read Kd 3.8 where 4 acted, and 3 % warned falsely.
 #: A servo that differs by what matters to the box (Kd 2.5 against a logged 3, −17 %) still shows.
 DISAGREE = {"Kp": 0.03, "Kd": 0.10}
+#: A sample is short of the law where ``|law| > (1 + SHORT_FRACTION) |τ| + SHORT_NM`` and ``|τ|`` is over half
+#: the joint's peak; a plateau needs ``MIN_SATURATED`` of them whose ``|τ|`` spread (interquartile range)
+#: is under ``PLATEAU_SPREAD`` of their median.
+SHORT_FRACTION, SHORT_NM, MIN_SATURATED, PLATEAU_SPREAD = 0.1, 0.5, 20, 0.03
+#: The motors' limit is modelled below the model's where the share the plateaus show is under this.
+LIMIT_SHARE = 0.97
 
 
 @dataclass
@@ -48,6 +65,8 @@ class GainFit:
         samples: (12,) samples used per joint.
         ok: (12,) bool, joints whose fit is well posed (enough samples, both
             regressors excited).
+        limit: (12,) the torque [N·m] the joint's efforts plateaued at where the law asked for more,
+            NaN where they did not (the module docstring).
     """
 
     kp: np.ndarray
@@ -58,13 +77,16 @@ class GainFit:
     residual_rms: np.ndarray
     samples: np.ndarray
     ok: np.ndarray
+    limit: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """Plain-type summary for beliefs and ``--json``."""
         return {"kp": self.kp.round(3).tolist(), "kd": self.kd.round(4).tolist(),
                 "kp_std": self.kp_std.round(4).tolist(), "kd_std": self.kd_std.round(5).tolist(),
                 "effort_residual_rms_nm": self.residual_rms.round(4).tolist(),
-                "samples": self.samples.tolist(), "ok": self.ok.tolist()}
+                "samples": self.samples.tolist(), "ok": self.ok.tolist(),
+                "torque_limit_nm": None if self.limit is None else
+                [None if not np.isfinite(x) else round(float(x), 3) for x in self.limit]}
 
 
 def fit_gains(traj: Trajectory) -> GainFit | None:
@@ -90,6 +112,7 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
     out = {k: np.zeros(n) for k in ("kp", "kd", "kp_std", "kd_std", "offset", "rms")}
     samples = np.zeros(n, dtype=int)
     ok = np.zeros(n, dtype=bool)
+    plateau = np.full(n, np.nan)
     for j in range(n):
         limit = np.abs(tau[mask, j]).max() if mask.any() else 0.0
         use = mask & (np.abs(tau[:, j]) < SATURATION * limit) & np.isfinite(tau[:, j])
@@ -107,7 +130,45 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
         out["kp_std"][j], out["kd_std"][j] = np.sqrt(np.diag(cov)[:2])
         out["rms"][j] = np.sqrt(s2)
         ok[j] = coef[0] > 0 and coef[1] >= 0
-    return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok)
+        if ok[j]:
+            plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], mask)
+    return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok,
+                   plateau)
+
+
+def _plateau(tau: np.ndarray, law: np.ndarray, mask: np.ndarray) -> float:
+    """|τ| [N·m] where one joint's efforts sit short of its fitted ``law`` on one level, else NaN."""
+    mag = np.abs(tau)
+    with np.errstate(invalid="ignore"):
+        short = mask & np.isfinite(mag) & (np.abs(law) > (1 + SHORT_FRACTION) * mag + SHORT_NM)
+        short &= mag > 0.5 * np.nanmax(np.where(mask, mag, np.nan))
+    if short.sum() < MIN_SATURATED:
+        return float("nan")
+    q1, med, q3 = np.percentile(mag[short], [25, 50, 75])
+    return float(med) if q3 - q1 < PLATEAU_SPREAD * med else float("nan")
+
+
+def applied_limit(fit: GainFit | None, model_limit: np.ndarray) -> tuple[tuple[float, ...] | None, list[str]]:
+    """The motors' torque limits to model, and a warning, where the log's efforts plateau below the model's.
+
+    Args:
+        fit: :func:`fit_gains`'s answer (None: no efforts).
+        model_limit: (12,) the model's limits [N·m].
+    Returns:
+        (12,) limits [N·m] — every joint's model limit times the median share the plateaued joints show
+        (one motor type: the module docstring) — or None where no joint plateaued or the share is at
+        least :data:`LIMIT_SHARE`; and one-line warnings.
+    """
+    if fit is None or fit.limit is None or not np.isfinite(fit.limit).any():
+        return None, []
+    seen = np.isfinite(fit.limit)
+    share = float(np.median(fit.limit[seen] / model_limit[seen]))
+    if share >= LIMIT_SHARE:
+        return None, []
+    names = ", ".join(GO1_JOINTS[j] for j in np.flatnonzero(seen))
+    return tuple(float(x) for x in share * model_limit), [
+        f"the joint efforts plateau at {share:.0%} of the model's torque limits ({_spread(fit.limit[seen])} N·m on "
+        f"{names}): modelling every motor's limit at that share (weaker motors or a low battery)"]
 
 
 def applied_gains(traj: Trajectory, fit: GainFit | None) -> tuple[np.ndarray | None, np.ndarray | None, list[str]]:

@@ -15,7 +15,7 @@ from pathlib import Path
 import yaml
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.estimation.gains import applied_gains, fit_gains
+from amhe_cli.estimation.gains import applied_gains, applied_limit, fit_gains
 from amhe_cli.estimation.payload import MIN_CLIPS as PAYLOAD_MIN_CLIPS, fit_payload
 from amhe_cli.estimation.timing import APPLY_ABOVE, mocap_offset
 from amhe_cli.errors import AmheError
@@ -130,11 +130,15 @@ def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
     if fit is None:
         return config
     kp, kd, warns = applied_gains(traj, fit)
-    for text in warns:
+    limit, limit_warns = applied_limit(fit, Scene(config).model.actuator_forcerange[:, 1].copy())
+    for text in warns + limit_warns:
         warnings.warn(text, stacklevel=3)
     traj.meta.setdefault("sensors", {})["gains"] = {
         **fit.to_dict(), "logged_kp": None if traj.kp is None else traj.kp.tolist(),
-        "logged_kd": None if traj.kd is None else traj.kd.tolist(), "used": "fitted" if warns else "logged"}
+        "logged_kd": None if traj.kd is None else traj.kd.tolist(), "used": "fitted" if warns else "logged",
+        "torque_limit_applied": limit is not None}
+    if limit is not None:
+        config = replace(config, torque_limit=limit)
     if kp is None:
         return config
     return replace(config, kp=tuple(float(x) for x in kp), kd=tuple(float(x) for x in kd))
@@ -215,6 +219,7 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
         config = _payload_from_rest(traj, config, nthread)
     differs = tuple(why for why, found in (
         ("servo gains", traj.meta.get("sensors", {}).get("gains", {}).get("used") == "fitted"),
+        ("motor torque limits", config.torque_limit is not None),
         ("payload", abs(config.trunk_payload) >= PAYLOAD_WARN_KG)) if found)
     traj.meta.setdefault("sensors", {})["robot_differs"] = list(differs)  # Problem.robot_differs, identify.clip_plan
     if params is None:

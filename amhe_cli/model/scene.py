@@ -71,6 +71,9 @@ class SceneConfig:
         trunk_payload: mass [kg] added to the trunk at its centre of mass (its
             inertia about the CoM unchanged): what a log's robot carries beyond
             the model (:mod:`~amhe_cli.estimation.payload`).
+        torque_limit: (12,) the motors' torque limits [N·m] (the position servos' force range,
+            symmetric); None = the model's 23.7 / 23.7 / 35.55 per leg. Lower where a log's joint
+            efforts plateau below them (weaker motors, a low battery: :mod:`~amhe_cli.estimation.gains`).
     """
 
     box_size: tuple[float, float, float] = (0.38, 0.38, 0.38)
@@ -83,6 +86,7 @@ class SceneConfig:
     kp: tuple[float, ...] | None = None
     kd: tuple[float, ...] | None = None
     trunk_payload: float = 0.0
+    torque_limit: tuple[float, ...] | None = None
 
     @property
     def robot_floor(self) -> float:
@@ -108,13 +112,14 @@ class SceneConfig:
             "kp": None if self.kp is None else [float(x) for x in self.kp],
             "kd": None if self.kd is None else [float(x) for x in self.kd],
             "trunk_payload": float(self.trunk_payload),
+            "torque_limit": None if self.torque_limit is None else [float(x) for x in self.torque_limit],
         }
 
     @classmethod
     def from_dict(cls, d: dict) -> "SceneConfig":
         d = dict(d)
         d["regions"] = tuple(FloorRegion(**r) for r in d.get("regions", [{"mu": 0.5}]))
-        for k in ("box_size", "box_inertia", "kp", "kd"):
+        for k in ("box_size", "box_inertia", "kp", "kd", "torque_limit"):
             if d.get(k) is not None:
                 d[k] = tuple(float(x) for x in d[k])
         return cls(**d)
@@ -356,6 +361,12 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
     model = spec.compile()
     if cfg.kp is not None or cfg.kd is not None:
         set_pd_gains(model, cfg.kp if cfg.kp is not None else DEFAULT_KP, cfg.kd if cfg.kd is not None else DEFAULT_KD)
+    if cfg.torque_limit is not None:
+        limit = np.broadcast_to(np.asarray(cfg.torque_limit, dtype=float), (model.nu,))
+        if not np.all(limit > 0):
+            raise AmheError(f"torque limits {list(limit)}: expected positive N·m for every joint")
+        model.actuator_forcerange[:] = np.column_stack([-limit, limit])
+        model.actuator_forcelimited[:] = 1
     return model
 
 
