@@ -85,7 +85,11 @@ def one(job: dict) -> dict:
     return {"log": job["log"], "seed": job["seed"], "tag": job.get("tag", ""), "estimate": s["estimate"], "std": s["std"],
             "truth": job["truth"], "wall_s": time.perf_counter() - t0, "generations": s["generations"],
             "residual_rms": s["cost"]["residual_rms"], "converged": s["converged"], "std_sources": s["std_sources"],
-            "replicates": s["replicates"]}
+            "replicates": s["replicates"],
+            # what the reading made of the log's robot: its payload fit, the gains (limits) and why it differs
+            "robot": {k: pr.traj.meta.get("sensors", {}).get(k) for k in ("payload", "robot_differs")}
+            | {"torque_limit": getattr(pr.scene.config, "torque_limit", None),
+               "kp_mean": None if pr.scene.config.kp is None else float(np.mean(pr.scene.config.kp))}}
 
 
 def rms_z(err: np.ndarray, std: np.ndarray) -> float:
