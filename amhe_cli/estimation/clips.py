@@ -217,8 +217,9 @@ def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int)
     At every 10th sample (and the last) either the trunk origin is farther than :data:`ROBOT_REACH`
     plus half the box's horizontal diagonal from the box's centre, or the robot's geoms, posed as
     recorded, are at least :data:`CLEAR_GAP` from the box (:meth:`~amhe_cli.model.scene.Scene.robot_box_gap`).
-    The radius alone took a robot trotting 0.2 m behind the box as touching it: a run's approach
-    gave no clip, and a robot 1.5 kg heavier than its model was read as its model (box mass +28 %).
+    The radius alone takes a robot walking up to the box, or round it, as touching it: on an emulated
+    run's recording (T1, a Go1 1.5 kg heavier than its model) it left fewer clips than a fit needs, and
+    the robot was read as its model.
     """
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:

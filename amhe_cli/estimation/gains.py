@@ -46,7 +46,8 @@ MIN_SAMPLES = 200
 DISAGREE = {"Kp": 0.03, "Kd": 0.10}
 #: A sample is short of the law where ``|law| > (1 + SHORT_FRACTION) |τ| + SHORT_NM`` and ``|τ|`` is over half
 #: the joint's peak; a plateau needs ``MIN_SATURATED`` of them whose ``|τ|`` spread (interquartile range)
-#: is under ``PLATEAU_SPREAD`` of their median.
+#: is under ``PLATEAU_SPREAD`` of their median plus the interquartile range of the effort's own noise
+#: (1.35 × the fit's residual RMS: a motor-current estimate of the torque scatters).
 SHORT_FRACTION, SHORT_NM, MIN_SATURATED, PLATEAU_SPREAD = 0.1, 0.5, 20, 0.03
 #: The motors' limit is modelled below the model's where the share the plateaus show is under this.
 LIMIT_SHARE = 0.97
@@ -131,13 +132,15 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
         out["rms"][j] = np.sqrt(s2)
         ok[j] = coef[0] > 0 and coef[1] >= 0
         if ok[j]:
-            plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], mask)
+            plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], mask,
+                                  out["rms"][j])
     return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok,
                    plateau)
 
 
-def _plateau(tau: np.ndarray, law: np.ndarray, mask: np.ndarray) -> float:
-    """|τ| [N·m] where one joint's efforts sit short of its fitted ``law`` on one level, else NaN."""
+def _plateau(tau: np.ndarray, law: np.ndarray, mask: np.ndarray, noise: float) -> float:
+    """|τ| [N·m] where one joint's efforts sit short of its fitted ``law`` on one level (within its ``noise``
+    [N·m RMS]), else NaN."""
     mag = np.abs(tau)
     with np.errstate(invalid="ignore"):
         short = mask & np.isfinite(mag) & (np.abs(law) > (1 + SHORT_FRACTION) * mag + SHORT_NM)
@@ -145,7 +148,7 @@ def _plateau(tau: np.ndarray, law: np.ndarray, mask: np.ndarray) -> float:
     if short.sum() < MIN_SATURATED:
         return float("nan")
     q1, med, q3 = np.percentile(mag[short], [25, 50, 75])
-    return float(med) if q3 - q1 < PLATEAU_SPREAD * med else float("nan")
+    return float(med) if q3 - q1 < PLATEAU_SPREAD * med + 1.35 * noise else float("nan")
 
 
 def applied_limit(fit: GainFit | None, model_limit: np.ndarray) -> tuple[tuple[float, ...] | None, list[str]]:

@@ -240,7 +240,7 @@ class Scene:
         ``mj_kinematics``, over the robot's collision geoms whose contype/conaffinity meet the box's: about
         70 µs a state on one core."""
         m = self.model
-        if getattr(self, "_gap_kin", None) is None:
+        if self._gap_kin is None:
             box = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "box")
             root = m.body_rootid[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "trunk")]
             robot = [g for g in range(m.ngeom) if m.body_rootid[m.geom_bodyid[g]] == root
