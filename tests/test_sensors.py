@@ -21,7 +21,7 @@ from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_t
 from amhe_cli.estimation.gains import applied_gains, applied_limit, fit_gains
 from amhe_cli.estimation.payload import fit_payload
 from amhe_cli.estimation.identify import IdentifySettings, identify
-from amhe_cli.estimation.problem import example_logs, load_problem
+from amhe_cli.estimation.problem import example_logs, load_problem, run_dated_poses
 from amhe_cli.estimation.timing import mocap_offset
 from amhe_cli.estimation.uncertainty import coverage
 from amhe_cli.estimation.cost import StateWeights, DEFAULT_SIGMA
@@ -199,6 +199,31 @@ def test_pose_stream_lag_is_found_from_the_stance_feet(shift):
     fit = mocap_offset(traj, Scene())
     assert fit is not None and fit.samples > 500
     assert fit.offset == pytest.approx(shift, abs=0.0025)
+
+
+def test_a_run_recording_dated_by_its_measured_latency_is_not_shifted_again(tmp_path):
+    """``amhe run`` dates a recording's poses by the lateness it measured (IMU against motion capture);
+    ``load_problem`` keeps that dating and says what the stance feet read instead. A lateness the user gave,
+    or none measured, leaves the stance-feet estimate to apply, as for any log."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        late = read_log(example_logs()[0], time_offset={"base": 0.012, "box": 0.012})
+    for source, applied in (("measured", False), ("given", True), ("unmeasured", True)):
+        meta = {"amhe_run": {"mode": "baseline", "mocap_latency": "0.003", "mocap_latency_source": source}}
+        path = write_mcap(tmp_path / f"{source}.mcap", replace(late, meta={}), metadata=meta)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            problem = load_problem(str(path), payload=False, nthread=2)
+        said = " ".join(str(w.message) for w in caught)
+        got = problem.traj.meta["sensors"]["time_offset"]
+        assert got["pose_stamp_lag_s"] == pytest.approx(0.012, abs=0.0025) and got["applied"] is applied
+        assert ("dated by the 3.0 ms its run measured" in said and "not shifted" in said) is not applied
+        assert ("shifted them by" in said) is applied
+    # a recording from before the source was kept: a positive lateness was measured (auto is the default)
+    older = replace(late, meta={"metadata": {"amhe_run": {"mocap_latency": "0.004"}}})
+    assert run_dated_poses(older) == 0.004
+    assert run_dated_poses(replace(late, meta={"metadata": {"amhe_run": {"mocap_latency": "0.000000"}}})) is None
+    assert run_dated_poses(replace(late, meta={})) is None
 
 
 def test_a_free_robot_side_parameter_is_recovered():

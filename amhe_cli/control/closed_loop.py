@@ -766,6 +766,7 @@ def save_run(result: RunResult, path, task: Task, settings: RunSettings, overwri
         meta["amhe_run"]["monotonic_t0"] = f"{result.traj.meta['monotonic_t0']:.6f}"
     if result.traj.meta.get("mocap_latency") is not None:  # and how late its motion capture came, as taken
         meta["amhe_run"]["mocap_latency"] = f"{result.traj.meta['mocap_latency']:.6f}"
+        meta["amhe_run"]["mocap_latency_source"] = str(result.traj.meta.get("mocap_latency_source", "given"))
     if truth is not None:
         meta[TRUTH_RECORD] = {k: json.dumps(to_plain(v)) for k, v in truth.items()}
     extra = [("/amhe/estimate", est_t, values.reshape(len(est_t), -1), labels)]

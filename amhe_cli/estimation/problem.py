@@ -123,6 +123,25 @@ ROBOT_DIFFERS_FREE = ("robot_box_friction",)
 PAYLOAD_SIGMAS, PAYLOAD_MIN_KG, PAYLOAD_WARN_KG = 3.0, 0.05, 0.1
 
 
+def run_dated_poses(traj: Trajectory) -> float | None:
+    """The lateness [s] by which an ``amhe run`` recording already dated its poses, where its run measured it
+    (``amhe_run`` metadata ``mocap_latency``, source ``measured``; a recording older than the source key
+    counts where the lateness is positive), else None.
+
+    Such poses are not shifted again by :func:`~amhe_cli.estimation.timing.mocap_offset`: on recordings of
+    the emulated Go1 (motion capture 3 ms late, measured 3.9–4.4 ms and dated back) the stance feet read a
+    further +7 to +13 ms, and shifting by it put the box mass +9–11 % off where the run's dating gave
+    −1.3 % and 0.0 % (docs/reference.md#identification).
+    """
+    run = (traj.meta.get("metadata") or {}).get("amhe_run") or {}
+    try:
+        late = float(run["mocap_latency"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    source = run.get("mocap_latency_source")
+    return late if source == "measured" or (source is None and late > 0) else None
+
+
 def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
     """The scene with the PD gains that acted, fitted from the log's joint efforts where it has them
     (:mod:`~amhe_cli.estimation.gains`); the fit goes into ``traj.meta["sensors"]["gains"]``."""
@@ -194,7 +213,12 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
     base = base_config or SceneConfig()
     traj = read_log(log, topics=topics or None, dt=base.timestep, smooth=smooth)
     lag = mocap_offset(traj, Scene(base))
-    if lag is not None and abs(lag.offset) > APPLY_ABOVE:
+    dated = run_dated_poses(traj)
+    if lag is not None and dated is not None and abs(lag.offset) > APPLY_ABOVE:
+        warnings.warn(f"the recording's poses are dated by the {dated * 1e3:.1f} ms its run measured (IMU attitude "
+                      f"against motion capture): not shifted by the stance feet's {lag.offset * 1e3:+.1f} ms",
+                      stacklevel=2)
+    elif lag is not None and abs(lag.offset) > APPLY_ABOVE:
         warnings.warn(f"the pose streams lag the joint states by {lag.offset * 1e3:+.1f} ms (stance feet slide "
                       f"otherwise): shifted them by {-lag.offset * 1e3:+.1f} ms", stacklevel=2)
         with warnings.catch_warnings():  # its warnings were issued by the first read
@@ -202,7 +226,9 @@ def load_problem(log: str, *, topics: dict[str, str] | None = None, params=None,
             traj = read_log(log, topics=topics or None, dt=base.timestep, smooth=smooth,
                             time_offset={"base": -lag.offset, "box": -lag.offset})
     if lag is not None:
-        traj.meta["sensors"]["time_offset"] = {**lag.to_dict(), "applied": abs(lag.offset) > APPLY_ABOVE}
+        traj.meta["sensors"]["time_offset"] = {**lag.to_dict(),
+                                               "applied": dated is None and abs(lag.offset) > APPLY_ABOVE,
+                                               **({"dated_by_run_s": dated} if dated is not None else {})}
     if len(traj) < 10:
         raise AmheError(f"{log} holds only {len(traj)} samples on the {base.timestep * 1e3:g} ms grid: "
                         "expected at least a second of overlapping joint states, base, box and commands")

@@ -226,6 +226,13 @@ class Go1Plant(Plant):
         return Measurement(t=now - t0, qpos=qpos, qvel=qvel, ages=ages,
                            box_fresh=max(ages["base"], ages["box"]) <= s.safety.mocap_timeout)
 
+    def _latency_source(self) -> str:
+        """How :attr:`pose_latency` came: ``given`` (the settings), ``measured`` (:class:`MocapLatency`) or
+        ``unmeasured`` (auto, no measure yet: poses at their arrival)."""
+        if self.latency is None:
+            return "given"
+        return "measured" if self._latency_said is not None else "unmeasured"
+
     def _update_latency(self, now: float) -> None:
         """The planner thread's share of :class:`MocapLatency`: an estimate once a second, said when it moves."""
         lat = self.latency.update(now)
@@ -385,7 +392,8 @@ class Go1Plant(Plant):
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",
                   "mocap": self.settings.mocap, "armed": self.settings.arm, "scene": self.scene.config.to_dict(),
                   # time 0 on this machine's monotonic clock: aligns the run with an emulator's event lines
-                  "monotonic_t0": self._t0, "mocap_latency": late, "warnings": []},
+                  "monotonic_t0": self._t0, "mocap_latency": late, "mocap_latency_source": self._latency_source(),
+                  "warnings": []},
         ), raw
 
     def extras(self) -> dict:
