@@ -21,9 +21,10 @@ in at least :data:`MIN_SATURATED` samples where the fitted law asks for more
 (:attr:`GainFit.limit`). A Go1's twelve motors are one motor (the knee's 1.5 ×
 gearing aside), so :func:`applied_limit` scales every joint's limit by the share
 the saturated ones show: a robot whose motors gave 85 % (``amhe emulate go1
---motor-strength 0.85``) plateaued at 20.14 N·m on all four thighs, against the
-model's 23.7, and the payload fitted beside the model's limits read 2.97 kg for
-its 1.5 (the heavier trunk stood in for the weaker motors).
+--motor-strength 0.85``) plateaued at 20.14 N·m on its thighs, against the
+model's 23.7, and the payload fitted beside the model's limits read 2.44 kg for
+its 1.5 (the heavier trunk stood in for the weaker motors), 1.45 kg with them
+modelled (docs/reference.md#identification).
 """
 
 from __future__ import annotations
