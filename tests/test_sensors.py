@@ -67,6 +67,24 @@ def test_gain_fit_recovers_the_applied_gains(stiff_log):
     assert len(warns) == 1 and "disagree" in warns[0] and "55" in warns[0] and "63" in warns[0]
 
 
+def test_commands_that_act_a_tick_after_their_stamps_are_found_and_shifted(tmp_path, stiff_log):
+    """A recording whose commands are stamped one 2 ms tick before they acted (amhe run's, against a Go1):
+    the fit finds the delay, reads the gains it would misread without it, and load_problem shifts the
+    commands so that rollouts apply each when it acted."""
+    early = replace(stiff_log, ctrl=np.concatenate([stiff_log.ctrl[1:], stiff_log.ctrl[-1:]]), meta={})
+    assert fit_gains(stiff_log).delay == 0.0
+    fit = fit_gains(early)
+    assert fit.delay == pytest.approx(0.002)
+    np.testing.assert_allclose(fit.kp, 63.0, rtol=0.01)
+    path = write_mcap(tmp_path / "early.mcap", early)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        problem = load_problem(str(path), payload=False, nthread=2)
+    assert any("act 2 ms after their stamps" in str(w.message) for w in caught)
+    np.testing.assert_allclose(problem.traj.ctrl[5:-5], stiff_log.ctrl[5:-5])
+    assert problem.traj.meta["sensors"]["gains"]["command_delay_s"] == pytest.approx(0.002)
+
+
 def test_gain_fit_agrees_silently_and_needs_efforts():
     traj = _lunge_log()
     kp, kd, warns = applied_gains(traj, fit_gains(traj))

@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 from importlib import resources
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from amhe_cli.estimation.belief import Belief
@@ -144,10 +145,19 @@ def run_dated_poses(traj: Trajectory) -> float | None:
 
 def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
     """The scene with the PD gains that acted, fitted from the log's joint efforts where it has them
-    (:mod:`~amhe_cli.estimation.gains`); the fit goes into ``traj.meta["sensors"]["gains"]``."""
+    (:mod:`~amhe_cli.estimation.gains`), and ``traj``'s commands shifted in place by the delay the fit found;
+    the fit goes into ``traj.meta["sensors"]["gains"]``."""
     fit = fit_gains(traj)
     if fit is None:
         return config
+    steps = int(round(fit.delay / traj.dt))
+    if steps:  # the rollouts apply each command when it acted
+        traj.ctrl = np.concatenate([np.repeat(traj.ctrl[:1], steps, axis=0), traj.ctrl[:-steps]])
+        seen = traj.observed.get("joint_commands")
+        if seen is not None:
+            traj.observed["joint_commands"] = np.concatenate([np.zeros(steps, dtype=bool), seen[:-steps]])
+        warnings.warn(f"the joint commands act {fit.delay * 1e3:.0f} ms after their stamps (the joint efforts say "
+                      "so): shifted them that much later", stacklevel=3)
     kp, kd, warns = applied_gains(traj, fit)
     limit, limit_warns = applied_limit(fit, Scene(config).model.actuator_forcerange[:, 1].copy())
     for text in warns + limit_warns:
