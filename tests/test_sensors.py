@@ -37,10 +37,16 @@ BOX_XY = (0.28 + 0.19 + 0.01, 0.0)
 TRUTH = {"box_mass": 5.0, "box_friction": 0.45}
 
 
-def _lunge_log(kp=55.0, kd=3.0, payload=0.0, box_xy=BOX_XY):
-    """A lunge probe (three head bumps) by a robot whose servo applies ``kp``/``kd`` and whose
-    trunk carries ``payload`` [kg]; its trajectory states the nominal 55/3, as a lab's command log would."""
-    plant = SimPlant(SceneConfig(trunk_payload=payload), truth=dict(TRUTH))
+#: The model's motor torque limits [N·m].
+MODEL_LIMIT = np.tile([23.7, 23.7, 35.55], 4)
+
+
+def _lunge_log(kp=55.0, kd=3.0, payload=0.0, box_xy=BOX_XY, torque_share=1.0):
+    """A lunge probe (three head bumps) by a robot whose servo applies ``kp``/``kd``, whose trunk carries
+    ``payload`` [kg] and whose motors give ``torque_share`` of the model's torque limits; its trajectory
+    states the nominal 55/3, as a lab's command log would."""
+    limit = None if torque_share == 1.0 else tuple(torque_share * MODEL_LIMIT)
+    plant = SimPlant(SceneConfig(trunk_payload=payload, torque_limit=limit), truth=dict(TRUTH))
     set_pd_gains(plant.model, kp, kd)
     q, _ = plant.scene.standing_state(box_xy=box_xy)
     plant.reset(q)
@@ -93,26 +99,13 @@ def test_gain_fit_agrees_silently_and_needs_efforts():
     assert fit_gains(traj) is None
 
 
-def _weak_motor_log(share):
-    """The lunge probe by a robot whose motors give ``share`` of the model's torque limits."""
-    plant = SimPlant(SceneConfig(torque_limit=tuple(share * MODEL_LIMIT)), truth=dict(TRUTH))
-    q, _ = plant.scene.standing_state(box_xy=(1.5, 0.0))
-    plant.reset(q)
-    for u in lunge_schedule():
-        plant.step(u)
-    traj = plant.trajectory()
-    traj.kp, traj.kd = np.full(12, 55.0), np.full(12, 3.0)
-    return traj
-
-
-MODEL_LIMIT = np.tile([23.7, 23.7, 35.55], 4)
 
 
 def test_efforts_that_plateau_below_the_models_limit_give_the_motors_limit(tmp_path):
     """Motors at half the model's torque: the thighs' efforts plateau at 11.85 N·m through the lunges, the
     fit reads it there and models every joint at that share (one motor type); the model's own motors,
     and efforts that never plateau, leave the limits alone. The scene carries it as its force range."""
-    weak = _weak_motor_log(0.5)
+    weak = _lunge_log(box_xy=(1.5, 0.0), torque_share=0.5)
     fit = fit_gains(weak)
     seen = np.isfinite(fit.limit)
     assert seen[[1, 4]].all() and not seen[[0, 2, 3, 5]].any()  # the front thighs; hips and knees never reach it
@@ -120,12 +113,12 @@ def test_efforts_that_plateau_below_the_models_limit_give_the_motors_limit(tmp_p
     limit, warns = applied_limit(fit, MODEL_LIMIT)
     np.testing.assert_allclose(limit, 0.5 * MODEL_LIMIT, rtol=0.01)
     assert len(warns) == 1 and "50%" in warns[0] and "FR_thigh_joint" in warns[0]
-    assert applied_limit(fit_gains(_weak_motor_log(1.0)), MODEL_LIMIT) == (None, [])
+    assert applied_limit(fit_gains(_lunge_log(box_xy=(1.5, 0.0))), MODEL_LIMIT) == (None, [])
     # a motor-current torque estimate scatters (0.3 N·m here): the plateau still reads, a robot that is its
     # model still reads none
     rng = np.random.default_rng(0)
     for share, found in ((0.5, True), (1.0, False)):
-        noisy = _weak_motor_log(share)
+        noisy = _lunge_log(box_xy=(1.5, 0.0), torque_share=share)
         noisy.joint_effort = noisy.joint_effort + rng.normal(0.0, 0.3, noisy.joint_effort.shape)
         got, _ = applied_limit(fit_gains(noisy), MODEL_LIMIT)
         assert (got is not None) == found
