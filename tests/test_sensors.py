@@ -219,7 +219,7 @@ def test_a_run_recording_dated_by_its_measured_latency_is_not_shifted_again(tmp_
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         late = read_log(example_logs()[0], time_offset={"base": 0.012, "box": 0.012})
-    for source, applied in (("measured", False), ("given", True), ("unmeasured", True)):
+    for source, applied in (("measured", False), ("given", True)):
         meta = {"amhe_run": {"mode": "baseline", "mocap_latency": "0.003", "mocap_latency_source": source}}
         path = write_mcap(tmp_path / f"{source}.mcap", replace(late, meta={}), metadata=meta)
         with warnings.catch_warnings(record=True) as caught:
@@ -234,6 +234,8 @@ def test_a_run_recording_dated_by_its_measured_latency_is_not_shifted_again(tmp_
     older = replace(late, meta={"metadata": {"amhe_run": {"mocap_latency": "0.004"}}})
     assert run_dated_poses(older) == 0.004
     assert run_dated_poses(replace(late, meta={"metadata": {"amhe_run": {"mocap_latency": "0.000000"}}})) is None
+    unmeasured = {"amhe_run": {"mocap_latency": "0.000000", "mocap_latency_source": "unmeasured"}}
+    assert run_dated_poses(replace(late, meta={"metadata": unmeasured})) is None
     assert run_dated_poses(replace(late, meta={})) is None
 
 

@@ -209,6 +209,8 @@ ROBOT_REACH = 0.4
 #: Nearer, the robot's geoms must stay this far [m] from the box's (:meth:`Scene.robot_box_gap`) at every
 #: sample checked (every 10th): a swinging foot moves 2–4 cm in 10 samples of 2 ms.
 CLEAR_GAP = 0.05
+#: The gap is computed on every this many samples (:func:`robot_box_clear`).
+GAP_STRIDE = 5
 
 
 def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
@@ -226,7 +228,10 @@ def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int)
         return np.zeros(0, dtype=bool)
     reach = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
     offsets = np.unique(np.r_[np.arange(0, hi + 1, 10), hi])
-    index = starts[:, None] + offsets[None]
+    # the geometry on every GAP_STRIDE-th sample, each checked sample taking its nearest (a foot moves
+    # under a centimetre in 4 ms): a fifth of the mj_geomDistance calls, and most of a check's time
+    index = np.minimum(np.round((starts[:, None] + offsets[None]) / GAP_STRIDE).astype(int) * GAP_STRIDE,
+                       (len(traj) - 1) // GAP_STRIDE * GAP_STRIDE)
     gap = np.full(len(traj), np.inf)
     need = np.unique(index)
     near = need[np.linalg.norm(traj.base_pos[need, :2] - traj.box_pos[need, :2], axis=1) <= reach]

@@ -52,8 +52,8 @@ DISAGREE = {"Kp": 0.03, "Kd": 0.10}
 SHORT_FRACTION, SHORT_NM, MIN_SATURATED, PLATEAU_SPREAD = 0.1, 0.5, 20, 0.03
 #: The motors' limit is modelled below the model's where the share the plateaus show is under this.
 LIMIT_SHARE = 0.97
-#: Longest command delay [s] :func:`fit_gains` searches.
-MAX_DELAY = 0.02
+#: Longest command delay [s] :func:`fit_gains` searches, on about this many samples of the log.
+MAX_DELAY, DELAY_SAMPLES = 0.02, 4000
 
 
 @dataclass
@@ -116,24 +116,27 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
     """
     if traj.joint_effort is None:
         return None
-    best = None
+    every = max(1, len(traj) // DELAY_SAMPLES)  # the delay is chosen on a thinned log, the gains fitted on all
+    scores = []
     for k in range(int(round(MAX_DELAY / traj.dt)) + 1):
-        fit = _fit_delayed(traj, k)
-        score = float(np.mean(fit.residual_rms[fit.ok])) if fit.ok.any() else np.inf
-        if best is None or score < best[0]:
-            best = (score, fit)
-    return best[1]
+        fit = _fit_delayed(traj, k, every)
+        scores.append(float(np.mean(fit.residual_rms[fit.ok])) if fit.ok.any() else np.inf)
+    return _fit_delayed(traj, int(np.argmin(scores)))
 
 
-def _fit_delayed(traj: Trajectory, k: int) -> GainFit:
-    """:func:`fit_gains` with the commands acting ``k`` grid steps after their stamps."""
-    mask = np.ones(len(traj), dtype=bool)
+def _fit_delayed(traj: Trajectory, k: int, every: int = 1) -> GainFit:
+    """:func:`fit_gains` with the commands acting ``k`` grid steps after their stamps, on every ``every``-th
+    sample."""
+    n_t = len(traj)
+    mask = np.zeros(n_t, dtype=bool)
+    mask[::every] = True
     for role in ("joint_states", "joint_commands"):
-        mask &= np.asarray(traj.observed.get(role, mask), dtype=bool)
+        mask &= np.asarray(traj.observed.get(role, np.ones(n_t, dtype=bool)), dtype=bool)
     ctrl = traj.ctrl
-    if k:
+    if k:  # the command acting at t is the one stamped at t - k, observed there
         ctrl = np.concatenate([np.repeat(ctrl[:1], k, axis=0), ctrl[:-k]])
-        mask = mask & np.concatenate([np.zeros(k, dtype=bool), mask[:-k]])
+        sent = np.asarray(traj.observed.get("joint_commands", np.ones(n_t, dtype=bool)), dtype=bool)
+        mask &= np.concatenate([np.zeros(k, dtype=bool), sent[:-k]])
     tau = traj.joint_effort
     err = ctrl - traj.joint_pos
     vel = traj.joint_vel
