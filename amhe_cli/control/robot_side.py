@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from amhe_cli.estimation.belief import Belief
+from amhe_cli.estimation.gains import spread
 
 #: Shares of the commanded gains outside this range are taken as a belief that does not describe this
 #: servo (another controller's log, a fit gone wrong): the model keeps the run's gains and says so.
@@ -119,12 +120,8 @@ def _describe(side: RobotSide, share_kp: float, share_kd: float, where: str) -> 
     return (f"the planner's robot from {where}: servo {share_kp:.2f} × Kp, {share_kd:.2f} × Kd of those commanded, "
             f"trunk payload {side.trunk_payload:+.2f} kg"
             + (f", robot–box friction {side.robot_box_friction:.2f}" if side.robot_box_friction is not None else "")
-            + (f", motors' torque limits {_spread(side.torque_limit)} N·m" if side.torque_limit is not None else ""))
+            + (f", motors' torque limits {spread(side.torque_limit)} N·m" if side.torque_limit is not None else ""))
 
-
-def _spread(x) -> str:
-    lo, hi = float(np.min(x)), float(np.max(x))
-    return f"{lo:.1f}" if abs(hi - lo) < 0.05 else f"{lo:.1f}–{hi:.1f}"
 
 
 def _scalar(v) -> float | None:

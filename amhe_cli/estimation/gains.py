@@ -124,6 +124,15 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
     return _fit_delayed(traj, int(np.argmin(scores)))
 
 
+def delayed(a: np.ndarray, k: int, fill=None) -> np.ndarray:
+    """``a`` (T, ...) delayed by ``k`` grid steps: row t holds row t − k; the first ``k`` rows hold row 0
+    (``fill`` None) or ``fill``."""
+    if not k:
+        return a
+    head = np.repeat(a[:1], k, axis=0) if fill is None else np.full((k,) + a.shape[1:], fill, dtype=a.dtype)
+    return np.concatenate([head, a[:-k]])
+
+
 def _fit_delayed(traj: Trajectory, k: int, every: int = 1) -> GainFit:
     """:func:`fit_gains` with the commands acting ``k`` grid steps after their stamps, on every ``every``-th
     sample."""
@@ -132,11 +141,10 @@ def _fit_delayed(traj: Trajectory, k: int, every: int = 1) -> GainFit:
     mask[::every] = True
     for role in ("joint_states", "joint_commands"):
         mask &= np.asarray(traj.observed.get(role, np.ones(n_t, dtype=bool)), dtype=bool)
-    ctrl = traj.ctrl
-    if k:  # the command acting at t is the one stamped at t - k, observed there
-        ctrl = np.concatenate([np.repeat(ctrl[:1], k, axis=0), ctrl[:-k]])
-        sent = np.asarray(traj.observed.get("joint_commands", np.ones(n_t, dtype=bool)), dtype=bool)
-        mask &= np.concatenate([np.zeros(k, dtype=bool), sent[:-k]])
+    ctrl = delayed(traj.ctrl, k)  # the command acting at t is the one stamped at t - k, observed there
+    if k:
+        mask &= delayed(np.asarray(traj.observed.get("joint_commands", np.ones(n_t, dtype=bool)), dtype=bool), k,
+                        fill=False)
     tau = traj.joint_effort
     err = ctrl - traj.joint_pos
     vel = traj.joint_vel
@@ -201,7 +209,7 @@ def applied_limit(fit: GainFit | None, model_limit: np.ndarray) -> tuple[tuple[f
         return None, []
     names = ", ".join(GO1_JOINTS[j] for j in np.flatnonzero(seen))
     return tuple(float(x) for x in share * model_limit), [
-        f"the joint efforts plateau at {share:.0%} of the model's torque limits ({_spread(fit.limit[seen])} N·m on "
+        f"the joint efforts plateau at {share:.0%} of the model's torque limits ({spread(fit.limit[seen])} N·m on "
         f"{names}): modelling every motor's limit at that share (weaker motors or a low battery)"]
 
 
@@ -226,13 +234,13 @@ def applied_gains(traj: Trajectory, fit: GainFit | None) -> tuple[np.ndarray | N
         kp = np.where(fit.ok, fit.kp, DEFAULT_KP) if kp is None else kp
         kd = np.where(fit.ok, fit.kd, DEFAULT_KD) if kd is None else kd
         warns.append(f"the log carries no gains: using the gains fitted from its joint efforts, "
-                     f"Kp {_spread(fit.kp[fit.ok])} N·m/rad, Kd {_spread(fit.kd[fit.ok])} N·m·s/rad")
+                     f"Kp {spread(fit.kp[fit.ok])} N·m/rad, Kd {spread(fit.kd[fit.ok])} N·m·s/rad")
         return kp, kd, warns
     changed = []
     for name, logged, fitted, std in (("Kp", kp, fit.kp, fit.kp_std), ("Kd", kd, fit.kd, fit.kd_std)):
         off = fit.ok & (np.abs(fitted - logged) > np.maximum(DISAGREE[name] * np.abs(logged), 4 * std))
         if off.any():
-            changed.append(f"{name} {_spread(logged[off])} logged, {_spread(fitted[off])} fitted "
+            changed.append(f"{name} {spread(logged[off])} logged, {spread(fitted[off])} fitted "
                            f"({int(off.sum())} joints)")
             logged[off] = fitted[off]
     if changed:
@@ -241,6 +249,7 @@ def applied_gains(traj: Trajectory, fit: GainFit | None) -> tuple[np.ndarray | N
     return kp, kd, warns
 
 
-def _spread(x: np.ndarray) -> str:
+def spread(x) -> str:
+    """``lo–hi`` of values to 3 significant figures, or one figure where they agree within 1 %."""
     lo, hi = float(np.min(x)), float(np.max(x))
     return f"{lo:.3g}" if abs(hi - lo) <= 0.01 * max(abs(hi), 1e-9) else f"{lo:.3g}–{hi:.3g}"

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.estimation.gains import applied_gains, applied_limit, fit_gains
+from amhe_cli.estimation.gains import applied_gains, applied_limit, delayed, fit_gains
 from amhe_cli.estimation.payload import MIN_CLIPS as PAYLOAD_MIN_CLIPS, fit_payload
 from amhe_cli.estimation.timing import APPLY_ABOVE, mocap_offset
 from amhe_cli.errors import AmheError
@@ -152,10 +152,10 @@ def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
         return config
     steps = int(round(fit.delay / traj.dt))
     if steps:  # the rollouts apply each command when it acted
-        traj.ctrl = np.concatenate([np.repeat(traj.ctrl[:1], steps, axis=0), traj.ctrl[:-steps]])
-        seen = traj.observed.get("joint_commands")
-        if seen is not None:
-            traj.observed["joint_commands"] = np.concatenate([np.zeros(steps, dtype=bool), seen[:-steps]])
+        traj.ctrl = delayed(traj.ctrl, steps)
+        if traj.observed.get("joint_commands") is not None:
+            traj.observed["joint_commands"] = delayed(np.asarray(traj.observed["joint_commands"], dtype=bool), steps,
+                                                      fill=False)
         warnings.warn(f"the joint commands act {fit.delay * 1e3:.0f} ms after their stamps (the joint efforts say "
                       "so): shifted them that much later", stacklevel=3)
     kp, kd, warns = applied_gains(traj, fit)
