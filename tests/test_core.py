@@ -683,6 +683,27 @@ def test_plant_set_param():
     assert plant.model.pair_friction[plant.scene.region_pairs, 0] == pytest.approx(0.45)  # others kept
 
 
+def test_plant_writes_a_payload_once_whatever_else_changes():
+    """Each set_param rewrites the whole truth: a trunk payload must not be added again at every write
+    (an emulated robot with a payload and a second robot-side change, or a task event, once carried it
+    twice, three times after T3's switch)."""
+    plant = SimPlant(SceneConfig(), truth=dict(TRUTH))
+    trunk = mujoco.mj_name2id(plant.model, mujoco.mjtObj.mjOBJ_BODY, "trunk")
+    bare = float(plant.model.body_mass[trunk])
+    assert plant.scene.trunk_mass == pytest.approx(bare)
+    plant.set_param("trunk_payload", 1.5)
+    plant.set_param("robot_box_friction", 0.8)
+    plant.set_param("box_mass", 6.0)
+    assert plant.model.body_mass[trunk] == pytest.approx(bare + 1.5)
+    assert plant.truth_values["trunk_payload"] == pytest.approx(1.5)
+    # a scene built with a payload reads it as its nominal, and a space on it writes it back unchanged
+    scene = Scene(SceneConfig(trunk_payload=0.7))
+    space = ParameterSpace(scene, free=("trunk_payload",))
+    assert space.prior_values["trunk_payload"][0] == pytest.approx(0.7)
+    space.write(scene.model, space.mean0)
+    assert scene.model.body_mass[trunk] == pytest.approx(bare + 0.7)
+
+
 def test_plant_trajectory_records_gains_and_masks(traj):
     np.testing.assert_allclose(traj.kp, 55.0)
     np.testing.assert_allclose(traj.kd, 3.0)

@@ -140,8 +140,10 @@ class ParameterSpace:
         body = m.geom_bodyid
         self._robot_geoms = np.flatnonzero((body != 0) & (body != scene.box_body) & (m.geom_priority == 0))
         self._trunk = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "trunk")
-        # the model's trunk without the scene's payload: trunk_payload, where free, replaces that payload
-        self._trunk_mass = float(m.body_mass[self._trunk]) - scene.config.trunk_payload
+        # the model's own trunk without any payload (the scene's, as built): trunk_payload, where free, is
+        # added to it; the payload the model carries now is its nominal value, so writing one is idempotent
+        # (a plant that reads its nominal from the written model once added a payload at every write)
+        self._trunk_mass = scene.trunk_mass
         self._kp0 = m.actuator_gainprm[:, 0].copy()  # the scene's (logged or fitted) gains
         self._kd0 = -m.actuator_biasprm[:, 2].copy()
         nominal = {
@@ -151,7 +153,7 @@ class ParameterSpace:
             "robot_box_friction": np.array([m.geom_friction[self._robot_geoms[0], 0]]),
             "robot_kp": np.array([self._kp0.mean()]),
             "robot_kd": np.array([self._kd0.mean()]),
-            "trunk_payload": np.array([scene.config.trunk_payload]),
+            "trunk_payload": np.array([float(m.body_mass[self._trunk]) - scene.trunk_mass]),
         }
         self.prior_values: dict[str, np.ndarray] = {}
         prior = prior or {}

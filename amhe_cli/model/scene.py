@@ -139,6 +139,7 @@ class Scene:
         model: the compiled ``mujoco.MjModel`` (treat as a template: copy it
             before writing parameters).
         box_body: body id of the box.
+        trunk_mass: the model's trunk mass [kg] without :attr:`SceneConfig.trunk_payload`.
         region_pairs: (n_regions,) ids of the box–floor ``<pair>`` per region.
         joint_qpos, joint_qvel: (12,) qpos/qvel addresses of the Go1 joints in
             :data:`GO1_JOINTS` order.
@@ -151,6 +152,9 @@ class Scene:
         self.model = _build(self.config)
         m = self.model
         self.box_body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "box")
+        # the model's own trunk [kg], without the config's payload: what a written trunk_payload adds to
+        self.trunk_mass = float(m.body_mass[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "trunk")]) - \
+            self.config.trunk_payload
         self._feet_kin = None  # (MjData, foot geom ids) for foot_centres, made on first use
         self._gap_kin = None  # (MjData, box geom, robot geoms) for robot_box_gap, made on first use
         self.region_pairs = np.array(
