@@ -297,8 +297,9 @@ def test_no_robot_is_a_one_line_error(tmp_path):
 def test_late_motion_capture_is_measured_against_the_imu_and_said(emulator, tmp_path):
     """The emulator's poses 25 ms late: the client reads that lateness from the trunk's attitude (IMU against
     motion capture) while it walks, says it in the run's log and keeps it with the recording (as measured),
-    whose poses (as the MHE's window) it dates that much earlier."""
-    for emu, where in stall_retries(emulator, tmp_path, "--pose-latency", "0.025"):
+    whose poses (as the MHE's window) it dates that much earlier. The emulated robot's motors give 85 % of
+    the commanded torque: at the end the run says that it was not the robot its planner modelled."""
+    for emu, where in stall_retries(emulator, tmp_path, "--pose-latency", "0.025", "--motor-strength", "0.85"):
         proc, out = run_client(emu, where, "--arm", "--duration", "8")
         emu.stop()
         if "no valid robot state" not in proc.stderr:
@@ -310,6 +311,8 @@ def test_late_motion_capture_is_measured_against_the_imu_and_said(emulator, tmp_
     # 25 ms is the emulator's floor: on loaded cores its pose thread runs late too (CI once read 31.2 ms, with
     # "motion capture stale" lines), and the relay's 2 ms tick can date the IMU a little late
     assert 21.0 <= said[-1] <= 45.0, proc.stderr
+    told = [ln for ln in proc.stderr.splitlines() if "not the one the planner modelled" in ln]
+    assert len(told) == 1 and "its servo gave 0.8" in told[0] and "amhe identify" in told[0], proc.stderr
     from mcap.reader import make_reader
     with open(out, "rb") as fh:
         run_meta = next(m.metadata for m in make_reader(fh).iter_metadata() if m.name == "amhe_run")

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.control.robot_side import RobotSide, check_run
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
                                       sample_rest_clips)
@@ -153,6 +154,27 @@ def test_a_kd_fit_a_few_percent_low_is_velocity_noise_not_another_servo():
         assert bool(warns) is warned and np.allclose(kd, kd_fit if warned else 3.0)
     kp, kd, warns = applied_gains(traj, replace(fit, kp=np.full(12, 0.95 * 55.0), kp_std=tight))
     assert len(warns) == 1 and "Kp" in warns[0] and np.allclose(kp, 0.95 * 55.0)
+
+
+def test_a_run_recorded_on_a_robot_unlike_its_plan_says_so():
+    """check_run: a robot whose servo gives 0.85 of the commanded Kp and whose motors plateau at half the
+    model's limits is told against a plan for the nominal robot, and not against a plan for itself; the
+    nominal robot against the nominal plan, and a log without efforts, say nothing."""
+    nominal = RobotSide((55.0,) * 12, (3.0,) * 12)
+    weak = _lunge_log(kp=0.85 * 55.0, kd=0.85 * 3.0, box_xy=(1.5, 0.0), torque_share=0.5)
+    line = check_run(weak, nominal, 55.0, MODEL_LIMIT)
+    assert line is not None and "0.85 × the commanded Kp where the planner modelled 1.00" in line
+    assert "plateaued at 50% of the model's torque limits where the planner modelled 100%" in line
+    assert "amhe identify" in line and "--belief" in line
+    as_read = RobotSide((0.85 * 55.0,) * 12, (0.85 * 3.0,) * 12, torque_limit=tuple(0.5 * MODEL_LIMIT))
+    assert check_run(weak, as_read, 55.0, MODEL_LIMIT) is None
+    model = _lunge_log(box_xy=(1.5, 0.0))
+    assert check_run(model, nominal, 55.0, MODEL_LIMIT) is None
+    # a plan for a weaker robot than the one recorded: its servo is told, its motors cannot be (no plateau)
+    line = check_run(model, as_read, 55.0, MODEL_LIMIT)
+    assert "1.00 × the commanded Kp where the planner modelled 0.85" in line and "plateaued" not in line
+    model.joint_effort = None
+    assert check_run(model, nominal, 55.0, MODEL_LIMIT) is None
 
 
 def test_fitted_gains_reach_the_scene_through_a_written_log(stiff_log, tmp_path):

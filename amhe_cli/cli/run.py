@@ -146,6 +146,10 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
         save_run(result, out_path, task, settings, overwrite=force,
                  extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})},
                  more=lambda log: recorder.write(log, ViewFrames(frames.model, frames.regions, frames.goal)))
+        if plant is not None and arm:  # the robot's own efforts against the model the run planned with
+            note = _robot_check(result, settings, start, task)
+            if note:
+                result.warnings.append(note)
     finally:
         if server is not None:
             server.close()
@@ -210,6 +214,20 @@ def failure_reason(result, task) -> str | None:
     if result.t_exec >= task.duration - 0.1:
         return f"time limit ({task.duration:g} s) reached with {where}"
     return f"run ended at t = {result.t_exec:.1f} s with {where}"
+
+
+def _robot_check(result, settings, start, task) -> str | None:
+    """:func:`~amhe_cli.control.robot_side.check_run` on an armed Go1 run's recording: one line where the robot
+    was not the one the planner modelled. The run is over and the robot damped: a check that fails says so,
+    it never raises."""
+    from amhe_cli.control.closed_loop import run_robot_side, task_scene_config
+    from amhe_cli.control.robot_side import check_run
+    from amhe_cli.model.scene import Scene
+    try:
+        limit = Scene(task_scene_config(task, 0.002, settings.kp, settings.kd)).model.actuator_forcerange[:, 1]
+        return check_run(result.traj, run_robot_side(settings, start, {}), settings.kp, limit)
+    except Exception as e:  # noqa: BLE001 - advice after the run, never a new failure
+        return f"could not check the robot against the planner's model ({type(e).__name__}: {e})"
 
 
 def _sigterm_as_interrupt(signum, frame):
