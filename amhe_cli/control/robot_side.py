@@ -175,4 +175,3 @@ def check_run(traj, side: RobotSide, kp: float, model_limit) -> str | None:
     return (f"this robot is not the one the planner modelled ({'; '.join(found)}): `amhe identify` of this recording "
             "reads its servo, motors and payload, and `--belief` with that belief gives them to the next run's "
             "planner and MHE (docs/real_robot.md)")
-
