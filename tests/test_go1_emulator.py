@@ -458,3 +458,11 @@ def test_cli_duration_and_bad_fault():
     assert "robot unlike its model: trunk_payload 1.5, motor strength 0.85" in r.output
     r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--robot", "robot_kp=40"])
     assert isinstance(r.exception, AmheError) and "--robot 'robot_kp=40'" in str(r.exception)
+    # a box unlike the task's: its truth from the start, said in the first line; a robot-side name is refused
+    r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--pose-to", "off", "--duration", "0.2",
+                                         "--box", "box_mass=5.5,box_friction=0.35"])
+    assert r.exit_code == 0, r.output
+    assert "box box_mass 5.5, box_friction 0.35" in r.output.splitlines()[0]
+    for bad in ("trunk_payload=1", "box_mass=200", "box_friction=sticky"):
+        r = CliRunner().invoke(emulate_cmd, ["go1", "--port", "0", "--box", bad])
+        assert isinstance(r.exception, AmheError) and f"--box {bad!r}" in str(r.exception)

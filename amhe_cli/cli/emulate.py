@@ -51,29 +51,37 @@ def parse_pose_noise(text: str) -> tuple[float, float]:
 #: plans with (``model/params.py``). The joint gains are not among them: the emulator applies each LowCmd's
 #: own, and ``--motor-strength`` scales what the motors deliver.
 ROBOT_SIDE = ("trunk_payload", "robot_box_friction")
+#: The box's parameters ``--box`` may set at the start (the task's events still change them later).
+BOX_SIDE = ("box_mass", "box_friction")
 
 
 def parse_robot(text: str | None) -> dict[str, float]:
-    """``NAME=VALUE[,NAME=VALUE]`` -> {name: value} for :data:`ROBOT_SIDE` parameters, within their bounds.
+    """``--robot NAME=VALUE[,NAME=VALUE]`` -> {name: value} for :data:`ROBOT_SIDE` parameters (:func:`parse_truth`)."""
+    return parse_truth(text, ROBOT_SIDE, "--robot", "trunk_payload=1.5")
+
+
+def parse_truth(text: str | None, names: tuple, option: str, example: str) -> dict[str, float]:
+    """``NAME=VALUE[,NAME=VALUE]`` -> {name: value} for the parameters ``names``, within their bounds.
 
     Raises:
-        AmheError: an unknown name, a value that is not a number or lies outside the parameter's bounds.
+        AmheError: an unknown name, a value that is not a number or lies outside the parameter's bounds;
+            the message names ``option`` and gives ``example``.
     """
     from amhe_cli.model.params import PARAMETERS
     out: dict[str, float] = {}
     for part in [p.strip() for p in (text or "").split(",") if p.strip()]:
         name, sep, value = part.partition("=")
         name = name.strip()
-        if not sep or name not in ROBOT_SIDE:
-            raise AmheError(f"--robot {part!r}: expected NAME=VALUE with NAME one of {', '.join(ROBOT_SIDE)}, "
-                            "e.g. trunk_payload=1.5")
+        if not sep or name not in names:
+            raise AmheError(f"{option} {part!r}: expected NAME=VALUE with NAME one of {', '.join(names)}, "
+                            f"e.g. {example}")
         try:
             v = float(value)
         except ValueError:
-            raise AmheError(f"--robot {part!r}: {value!r} is not a number") from None
+            raise AmheError(f"{option} {part!r}: {value!r} is not a number") from None
         lo, hi = PARAMETERS[name].lower[0], PARAMETERS[name].upper[0]
         if not (math.isfinite(v) and lo <= v <= hi):
-            raise AmheError(f"--robot {part!r}: expected {name} in [{lo:g}, {hi:g}] {PARAMETERS[name].unit}")
+            raise AmheError(f"{option} {part!r}: expected {name} in [{lo:g}, {hi:g}] {PARAMETERS[name].unit}")
         out[name] = v
     return out
 
@@ -115,13 +123,16 @@ def emulate_cmd():
 @click.option("--robot", "robot", default=None, metavar="NAME=VALUE[,...]",
               help="The emulated robot unlike the model amhe plans with: trunk_payload [kg] (a point mass at the "
                    "trunk's centre of mass), robot_box_friction [-].")
+@click.option("--box", "box", default=None, metavar="NAME=VALUE[,...]",
+              help="The box unlike the task's (and the run's nominal belief) from the start: box_mass [kg], "
+                   "box_friction [-] (box–floor); the task's events still change them (T3's switch, T4's step).")
 @click.option("--motor-strength", default=1.0, show_default=True, type=click.FloatRange(0, 2, min_open=True),
               help="Share of the commanded torque the motors deliver, torque limits included (0.85: weaker "
                    "motors than the model's).")
 @click.option("--quiet", "-q", is_flag=True, help="No summary line on stderr at the end.")
 @live_option
 def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_body, faults, record, force,
-            duration, seed, robot, motor_strength, quiet, live):
+            duration, seed, robot, box, motor_strength, quiet, live):
     """A Go1 EDU on the low-level UDP link (legged_sdk 3.8), played by the sim plant.
 
     \b
@@ -140,11 +151,12 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     fault_list = [parse_fault(f) for f in faults]
     noise = parse_pose_noise(pose_noise)
     robot_truth = parse_robot(robot)
+    box_truth = parse_truth(box, BOX_SIDE, "--box", "box_mass=5.5")
     target = None if pose_to.strip().lower() == "off" else parse_address(pose_to, POSE_STREAM_PORT)
     check_live(live)
     t = get_task(task)
     plant = make_plant(t, _SCENE_KP, _SCENE_KD)
-    for name, value in robot_truth.items():  # the robot's own truth, never shown to the client
+    for name, value in {**box_truth, **robot_truth}.items():  # the world's own truth, never shown to the client
         plant.set_param(name, value)
     server = view = None
     if live is not None:  # the emulated robot's true state, as the plant's own view
@@ -167,6 +179,7 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
     unlike = [f"{k} {v:g}" for k, v in robot_truth.items()] + (
         [f"motor strength {motor_strength:g}"] if motor_strength != 1.0 else [])
     extra += f", robot unlike its model: {', '.join(unlike)}" if unlike else ""
+    extra += f", box {', '.join(f'{k} {v:g}' for k, v in box_truth.items())}" if box_truth else ""
     click.echo(f"amhe emulate go1: listening on udp://{bh}:{bp}, {poses}, task {t.name}{extra}")
     sys.stdout.flush()
     try:
