@@ -77,6 +77,18 @@ def test_run_refuses_its_truth_csv_and_probe_belief_before_probing(capsys, tmp_p
     assert not out.exists() and belief.read_text() == "keep me\n"
 
 
+def test_a_robot_belief_is_refused_in_true_mode_and_when_missing(capsys, tmp_path):
+    """``--robot-belief`` models a robot a belief describes: true mode plans with the plant's own, and a file
+    that is not there is named; both before any work."""
+    out = tmp_path / "r.mcap"
+    one_line_error(amhe(capsys, "run", "--mode", "true", "--robot-belief", tmp_path / "robot.yaml", "--out", out),
+                   "--robot-belief", "--mode true")
+    missing = tmp_path / "missing.belief.yaml"
+    one_line_error(amhe(capsys, "run", "--mode", "baseline", "--belief", missing, "--robot-belief", missing,
+                        "--out", out), str(missing), "not found")
+    assert not out.exists()
+
+
 def test_two_outputs_cannot_share_a_file(capsys, tmp_path):
     one_line_error(amhe(capsys, "identify", tmp_path / "missing.mcap", "--out", tmp_path / "a.png",
                         "--plot", tmp_path / "a.png"), "--plot", "--out")

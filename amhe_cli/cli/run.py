@@ -27,6 +27,10 @@ from amhe_cli.estimation.identify import IdentifySettings
 @click.option("--belief", default=None, type=click.Path(),
               help="Starting belief YAML (default: sim: probe in the sim first, about a minute on 2 cores, saved "
                    "as <out stem>.probe.belief.yaml for the next run's --belief; go1: the nominal prior).")
+@click.option("--robot-belief", default=None, type=click.Path(),
+              help="Belief YAML whose robot side (servo, trunk payload, motors' torque limits, robot–box "
+                   "friction) the planner and the MHE model, the box's still from --belief: `amhe identify` of "
+                   "one run of this robot, kept for every box it pushes (default: --belief's robot side).")
 @click.option("--config", default=None, type=click.Path(),
               help="YAML: planner, weights, mhe, mhe_params, kp, kd, cycle, task, safety, reflex overrides.")
 @click.option("--seed", default=0, show_default=True, type=int,
@@ -61,7 +65,7 @@ from amhe_cli.estimation.identify import IdentifySettings
                    "own core where it has one: mhe_cores in docs/config.md).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 @live_option
-def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
+def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
             box_body, goal, arm, out, force, plot, as_json, threads, quiet, live):
     """Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1.
 
@@ -97,7 +101,11 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
     goal_xy = parse_xy(goal, "--goal") if goal is not None else None
     if target == "sim" and goal is not None:
         raise AmheError("--goal is for --target go1; the sim tasks have their own goals (use --config task: goal)")
+    if robot_belief is not None and mode == "true":
+        raise AmheError("--robot-belief is for --mode baseline or adaptive: --mode true plans with the plant's "
+                        "own robot")
     start = load_belief(belief)
+    robot_start = load_belief(robot_belief)
     talk = not (quiet or as_json)
     if task.name == "t5":
         click.echo(f"amhe: warning: {T5_WARNING}", err=True)
@@ -134,20 +142,20 @@ def run_cmd(task_name, target, mode, belief, config, seed, duration, realtime, r
                 click.echo(f"starting belief: {belief_text(start)}; saved to {probe_path} (next time: --belief "
                            f"{probe_path})", err=True)
         if talk and mode != "true":  # a robot unlike the model, as the belief has it
-            side = run_robot_side(settings, start, {})
+            side = run_robot_side(settings, robot_start or start, {})
             if side.source:
                 click.echo(side.source, err=True)
         bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
         try:
             result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant,
-                              view=View([server, recorder]))
+                              view=View([server, recorder]), robot=robot_start)
         finally:
             bar.close()
         save_run(result, out_path, task, settings, overwrite=force,
                  extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})},
                  more=lambda log: recorder.write(log, ViewFrames(frames.model, frames.regions, frames.goal)))
         if plant is not None and arm:  # the robot's own efforts against the model the run planned with
-            note = _robot_check(result, settings, start, task)
+            note = _robot_check(result, settings, robot_start or start, task)
             if note:
                 result.warnings.append(note)
     finally:

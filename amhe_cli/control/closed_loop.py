@@ -458,7 +458,7 @@ def has_fallen(task: Task, scene: Scene, qpos: np.ndarray) -> bool:
 
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
              progress: Callable[[float], None] | None = None, plant: Plant | None = None,
-             view=None) -> RunResult:
+             view=None, robot: Belief | None = None) -> RunResult:
     """Run ``task`` on a plant with the planner in ``settings.mode`` (paper Algorithm 1).
 
     Args:
@@ -474,6 +474,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             (mean paths, compute time, lead), the safety state of a plant that has one
             (``plant.safety_status()``), each change of the planner's belief, and every message;
             it never blocks (None: no view).
+        robot: a belief whose robot side (:mod:`~amhe_cli.control.robot_side`: servo, payload, torque
+            limits, robot–box friction) the planner and the MHE model instead of ``belief``'s, whose box
+            they keep (None: ``belief``'s own; ``true`` mode takes the plant's truth either way).
     Returns:
         :class:`RunResult`; ``failure`` says why a run ended early — a plant
         failure (a safety trip, a lost link), Ctrl-C, or an exception in the
@@ -524,7 +527,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             raise AmheError("mode true needs the plant's true parameters, and this plant has none "
                             "(a real robot): use --mode baseline or adaptive")
         planner_threads, mhe_threads, mhe_duty = core_split(s, clocked)
-        side = run_robot_side(s, belief, plant.truth_values or {})
+        side = run_robot_side(s, robot or belief, plant.truth_values or {})
         if side.source:
             note(side.source)
         planner, space = make_planner(task, s, belief, plant.truth_values or {}, nthread=planner_threads, side=side)

@@ -24,6 +24,7 @@ without that belief and 6 of 8 with it.
 
 A run that was planned for one robot and recorded another says so at its end (:func:`check_run`): its own
 joint efforts against its commands give the servo and where the motors plateau, as ``identify`` reads them.
+``amhe run --robot-belief`` takes the robot side from one belief and the box from another (``--belief``).
 """
 
 from __future__ import annotations
