@@ -65,8 +65,8 @@ from amhe_cli.estimation.identify import IdentifySettings
                    "own core where it has one: mhe_cores in docs/config.md).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 @live_option
-def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duration, realtime, robot, local_port, mocap, base_body,
-            box_body, goal, arm, out, force, plot, as_json, threads, quiet, live):
+def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duration, realtime, robot, local_port, mocap,
+            base_body, box_body, goal, arm, out, force, plot, as_json, threads, quiet, live):
     """Push a box with the adaptive sampling MPC (MPOPI + online MHE) on the sim plant or a Go1.
 
     \b
