@@ -88,7 +88,7 @@ def one(job: dict) -> dict:
             "replicates": s["replicates"],
             # what the reading made of the log's robot: its payload fit, the gains (limits) and why it differs
             "robot": {k: pr.traj.meta.get("sensors", {}).get(k) for k in ("payload", "robot_differs")}
-            | {"torque_limit": getattr(pr.scene.config, "torque_limit", None),
+            | {"torque_limit": pr.scene.config.torque_limit,
                "kp_mean": None if pr.scene.config.kp is None else float(np.mean(pr.scene.config.kp))}}
 
 

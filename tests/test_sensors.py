@@ -100,8 +100,6 @@ def test_gain_fit_agrees_silently_and_needs_efforts():
     assert fit_gains(traj) is None
 
 
-
-
 def test_efforts_that_plateau_below_the_models_limit_give_the_motors_limit(tmp_path):
     """Motors at half the model's torque: the thighs' efforts plateau at 11.85 N·m through the lunges, the
     fit reads it there and models every joint at that share (one motor type); the model's own motors,

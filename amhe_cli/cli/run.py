@@ -155,7 +155,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
                  extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})},
                  more=lambda log: recorder.write(log, ViewFrames(frames.model, frames.regions, frames.goal)))
         if plant is not None and arm:  # the robot's own efforts against the model the run planned with
-            note = _robot_check(result, settings, robot_start or start, task)
+            note = _robot_check(result, settings, task)
             if note:
                 result.warnings.append(note)
     finally:
@@ -224,16 +224,18 @@ def failure_reason(result, task) -> str | None:
     return f"run ended at t = {result.t_exec:.1f} s with {where}"
 
 
-def _robot_check(result, settings, start, task) -> str | None:
-    """:func:`~amhe_cli.control.robot_side.check_run` on an armed Go1 run's recording: one line where the robot
-    was not the one the planner modelled. The run is over and the robot damped: a check that fails says so,
-    it never raises."""
-    from amhe_cli.control.closed_loop import run_robot_side, task_scene_config
+def _robot_check(result, settings, task) -> str | None:
+    """:func:`~amhe_cli.control.robot_side.check_run` on an armed Go1 run's recording against the robot side
+    its planner modelled (``result.side``): one line where the robot was not that one. The run is over and
+    the robot damped: a check that fails says so, it never raises."""
+    from amhe_cli.control.closed_loop import task_scene_config
     from amhe_cli.control.robot_side import check_run
     from amhe_cli.model.scene import Scene
+    if result.side is None:  # the run stopped before it planned
+        return None
     try:
         limit = Scene(task_scene_config(task, 0.002, settings.kp, settings.kd)).model.actuator_forcerange[:, 1]
-        return check_run(result.traj, run_robot_side(settings, start, {}), settings.kp, limit)
+        return check_run(result.traj, result.side, settings.kp, limit)
     except Exception as e:  # noqa: BLE001 - advice after the run, never a new failure
         return f"could not check the robot against the planner's model ({type(e).__name__}: {e})"
 

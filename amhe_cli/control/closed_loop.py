@@ -275,6 +275,7 @@ class RunResult:
         warnings: the messages a user should see: a fall, a lost box, estimator failures.
         failure: why the plant stopped early (a safety trip, a lost link), else None.
         extras: the plant's raw streams (:meth:`~amhe_cli.plants.base.Plant.extras`), recorded beside the trajectory.
+        side: the robot side the planner and the MHE modelled (:class:`~amhe_cli.control.robot_side.RobotSide`).
     """
 
     success: bool
@@ -295,6 +296,7 @@ class RunResult:
     failure: str | None = None
     extras: dict = field(default_factory=dict)
     recoveries: int = 0
+    side: RobotSide | None = None
 
     def metrics(self) -> dict:
         """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed)."""
@@ -723,7 +725,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         estimates=(np.array(est_t), np.array(est_v), np.array(est_s)), labels=list(space.labels),
         messages=messages, warnings=warnings, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
         plan_times=np.array(plan_times), failure=failure, extras=plant.extras(),
-        recoveries=reflex.recoveries,
+        recoveries=reflex.recoveries, side=side,
     )
 
 

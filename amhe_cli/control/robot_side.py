@@ -130,7 +130,6 @@ def _describe(side: RobotSide, share_kp: float, share_kd: float, where: str) -> 
             + (f", motors' torque limits {spread(side.torque_limit)} N·m" if side.torque_limit is not None else ""))
 
 
-
 def _scalar(v) -> float | None:
     if v is None:
         return None
