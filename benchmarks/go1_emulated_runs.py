@@ -13,7 +13,8 @@ once (default: as many as the CPUs hold). The same seeds run in every mode, so r
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
 from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``recoveries_why``
-holds [t, reason] of each fall-reflex recovery, ``mhe_deferred`` the MHE updates its core budget put
+holds [t, reason] of each fall-reflex recovery, ``robot_reads`` [t, servo share, limit share] of each read of
+the robot that the planner followed, ``mhe_deferred`` the MHE updates its core budget put
 off and ``mhe_update_s`` their median wall time [s]), then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -65,6 +66,9 @@ STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
 #: the fall reflex's start of a recovery, with what set it off (reflex.FallReflex.update)
 RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
+#: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
+ROBOT_READ = re.compile(r"t=([0-9.]+) s: this robot is not the one the planner modelled: its own joint efforts read "
+                        r"the servo at ([0-9.]+) × the commanded gains and the motors at ([0-9]+)%")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -192,6 +196,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     # when each recovery started and why (a tilt, a height, a rate, or every sampled plan tilting):
     # the rows then tell which part of the loop pushed the trunk out of its envelope
     res["recoveries_why"] = [[float(t), why] for t, why in RECOVERY.findall(log)]
+    # each time the run read its robot unlike the planner's model and followed it: [t, servo share, limit share]
+    res["robot_reads"] = [[float(t), float(sv), float(lim) / 100] for t, sv, lim in ROBOT_READ.findall(log)]
     m = DEFERRED.search(log)
     res["mhe_deferred"] = int(m.group(1)) if m else 0
     m = STEPS.search(log)

@@ -1428,3 +1428,31 @@ def test_a_ctrl_c_between_the_csv_and_the_json_line_acts_after_both(tmp_path, mo
     assert sent == [str(tmp_path / "grid.csv")]
     assert len(read_rows(tmp_path / "grid.csv")) == len((tmp_path / "grid.jsonl").read_text().splitlines()) == 1
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is back
+
+
+def test_a_run_reads_its_robot_from_its_joint_efforts_and_plans_for_it(monkeypatch):
+    """``robot_read``: a sim robot whose servo gives 85 of the commanded Kp 100 is read from the run's own joint
+    efforts (here from t = 1 s) and said once; the planner's and the MHE's models take that servo from then on
+    (every model write_robot edits holds 0.85 × the gains), and the run ends with that side. The nominal robot
+    is read as its model and nothing changes; mode true (the plant's truth) refuses the setting."""
+    from amhe_cli.control import closed_loop
+    monkeypatch.setattr(closed_loop, "READ_FROM", 1.0)
+    edited = []
+    original = closed_loop.write_robot
+    monkeypatch.setattr(closed_loop, "write_robot", lambda model, side: (edited.append(model), original(model, side)))
+    task = replace(get_task("t1", duration=1.6), truth={**get_task("t1").truth, "robot_kp": 85.0})
+    s = small_settings("adaptive", robot_read=True, mhe=MHESettings(window=0.5, every=0.25, iters=1, samples=4))
+    result = run_task(task, belief(4.0, 0.5), s)
+    told = [m for m in result.warnings if "not the one the planner modelled" in m]
+    assert len(told) == 1 and "read the servo at 0.85 × the commanded gains" in told[0], result.messages
+    assert result.side.kp == pytest.approx((85.0,) * 12, rel=0.01) and result.side.torque_limit is None
+    assert len(edited) > s.planner.samples  # the planner's sample models and the MHE's
+    for model in edited:
+        np.testing.assert_allclose(model.actuator_gainprm[:, 0], 85.0, rtol=0.01)
+        np.testing.assert_allclose(-model.actuator_biasprm[:, 2], 0.85 * s.kd, rtol=0.01)
+    assert any("read from its joint efforts 1 times" in m for m in result.messages)
+    edited.clear()
+    result = run_task(get_task("t1", duration=1.6), belief(4.0, 0.5), replace(s, mode="baseline"))
+    assert not edited and result.side.kp == (s.kp,) * 12 and not any("not the one" in m for m in result.messages)
+    with pytest.raises(AmheError, match="robot_read"):
+        run_task(task, None, replace(s, mode="true"))

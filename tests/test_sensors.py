@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.control.maneuver import lunge_schedule
-from amhe_cli.control.robot_side import RobotSide, check_run
+from amhe_cli.control.robot_side import RobotSide, check_run, follow, read_robot, write_robot
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
                                       sample_rest_clips)
@@ -173,6 +173,41 @@ def test_a_run_recorded_on_a_robot_unlike_its_plan_says_so():
     assert "1.00 × the commanded Kp where the planner modelled 0.85" in line and "plateaued" not in line
     model.joint_effort = None
     assert check_run(model, nominal, 55.0, MODEL_LIMIT) is None
+
+
+def test_a_read_of_the_robot_mid_run_gives_the_planner_that_robot():
+    """read_robot + follow (``robot_read``): a servo at 0.85 of the commanded gains and motors plateauing at half
+    the model's limits are read (thinned to a few hundred samples as a run's read is, as the whole log reads
+    them) and become the side a run follows; a side already as read, and the nominal robot against the nominal
+    side, are followed by nothing; write_robot puts the side into a model."""
+    nominal = RobotSide((55.0,) * 12, (3.0,) * 12)
+    weak = _lunge_log(kp=0.85 * 55.0, kd=0.85 * 3.0, box_xy=(1.5, 0.0), torque_share=0.5)
+    whole, thinned = read_robot(weak, 55.0, MODEL_LIMIT), read_robot(weak, 55.0, MODEL_LIMIT, max_samples=400)
+    for read in (whole, thinned):
+        assert read.servo == pytest.approx(0.85, rel=0.01) and read.limit_share == pytest.approx(0.5, rel=0.02)
+    side = follow(nominal, thinned, 55.0, 3.0, MODEL_LIMIT)
+    np.testing.assert_allclose(side.kp, 0.85 * 55.0, rtol=0.01)
+    np.testing.assert_allclose(side.kd, 0.85 * 3.0, rtol=0.01)
+    np.testing.assert_allclose(side.torque_limit, 0.5 * MODEL_LIMIT, rtol=0.02)
+    assert "servo at 0.85 × the commanded gains and the motors at 50%" in side.source
+    assert follow(side, whole, 55.0, 3.0, MODEL_LIMIT) is None
+    # payload and shell stay the side's own: a read has no rollouts to tell them
+    assert follow(replace(nominal, trunk_payload=1.5), whole, 55.0, 3.0, MODEL_LIMIT).trunk_payload == 1.5
+    model = _lunge_log(box_xy=(1.5, 0.0))
+    read = read_robot(model, 55.0, MODEL_LIMIT, max_samples=400)
+    assert read.servo == pytest.approx(1.0, abs=0.01) and read.limit_share == 1.0
+    assert follow(nominal, read, 55.0, 3.0, MODEL_LIMIT) is None
+    # the servo alone differs (no plateau): the limits stay the model's
+    only_servo = follow(nominal, replace(read, servo=0.8), 55.0, 3.0, MODEL_LIMIT)
+    assert only_servo.torque_limit is None and only_servo.kp == pytest.approx((44.0,) * 12)
+    # too few well-posed joints say nothing
+    model.joint_effort = None
+    assert read_robot(model, 55.0, MODEL_LIMIT) is None
+    scene = Scene(SceneConfig())
+    write_robot(scene.model, side)
+    np.testing.assert_allclose(scene.model.actuator_gainprm[:, 0], side.kp)
+    np.testing.assert_allclose(-scene.model.actuator_biasprm[:, 2], side.kd)
+    np.testing.assert_allclose(scene.model.actuator_forcerange[:, 1], side.torque_limit)
 
 
 def test_fitted_gains_reach_the_scene_through_a_written_log(stiff_log, tmp_path):

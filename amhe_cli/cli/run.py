@@ -228,14 +228,12 @@ def _robot_check(result, settings, task) -> str | None:
     """:func:`~amhe_cli.control.robot_side.check_run` on an armed Go1 run's recording against the robot side
     its planner modelled (``result.side``): one line where the robot was not that one. The run is over and
     the robot damped: a check that fails says so, it never raises."""
-    from amhe_cli.control.closed_loop import task_scene_config
+    from amhe_cli.control.closed_loop import model_torque_limit
     from amhe_cli.control.robot_side import check_run
-    from amhe_cli.model.scene import Scene
     if result.side is None:  # the run stopped before it planned
         return None
     try:
-        limit = Scene(task_scene_config(task, 0.002, settings.kp, settings.kd)).model.actuator_forcerange[:, 1]
-        return check_run(result.traj, result.side, settings.kp, limit)
+        return check_run(result.traj, result.side, settings.kp, model_torque_limit(task, settings))
     except Exception as e:  # noqa: BLE001 - advice after the run, never a new failure
         return f"could not check the robot against the planner's model ({type(e).__name__}: {e})"
 

@@ -39,6 +39,7 @@ import json
 import tempfile
 import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -60,7 +61,9 @@ from amhe_cli.control.gait import GAITS
 from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
-from amhe_cli.control.robot_side import RobotSide, robot_side
+from amhe_cli.control.robot_side import READ_EVERY, READ_FROM, READ_SAMPLES, READ_WINDOW, RobotSide, follow, read_robot
+from amhe_cli.control.robot_side import robot_side
+from amhe_cli.control.robot_side import write_robot
 from amhe_cli.model.rollout import default_threads
 from amhe_cli.model.scene import Scene, SceneConfig
 from amhe_cli.control.tasks import Task
@@ -209,6 +212,11 @@ class RunSettings:
             and shown, but the planner keeps the starting belief — Baseline's control with the
             estimator's load and a watch on its estimate (check an estimator on a robot before
             trusting it; measure what running it costs the loop: docs/evaluation.md#on-the-emulated-go1).
+        robot_read: read the robot's servo and motors from its own joint efforts every
+            :data:`~amhe_cli.control.robot_side.READ_EVERY` s of the run (in a thread of its own on the
+            wall clock) and, where they differ from what the planner models, plan for (and estimate
+            with) the robot as read (:func:`~amhe_cli.control.robot_side.follow`); ``baseline`` and
+            ``adaptive`` only. None (default): on the wall clock (a robot), off in the lock-step sim.
     """
 
     mode: str = "adaptive"
@@ -225,6 +233,7 @@ class RunSettings:
     reflex: ReflexSettings = field(default_factory=ReflexSettings)
     latency: float | None = None
     mhe_shadow: bool = False
+    robot_read: bool | None = None
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -242,6 +251,9 @@ class RunSettings:
                                                (self.mhe_cores < 1 or float(self.mhe_cores).is_integer())):
             raise AmheError(f"mhe_cores {self.mhe_cores}: expected a share of one core in (0, 1) "
                             "or a whole number of cores")
+        if self.robot_read and self.mode == "true":
+            raise AmheError("robot_read follows a robot unlike its model, and mode true plans with the plant's "
+                            "truth: use mode baseline or adaptive")
         if self.cycle < self.planner.dt - 1e-12:
             raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
         if self.latency is not None:
@@ -275,7 +287,8 @@ class RunResult:
         warnings: the messages a user should see: a fall, a lost box, estimator failures.
         failure: why the plant stopped early (a safety trip, a lost link), else None.
         extras: the plant's raw streams (:meth:`~amhe_cli.plants.base.Plant.extras`), recorded beside the trajectory.
-        side: the robot side the planner and the MHE modelled (:class:`~amhe_cli.control.robot_side.RobotSide`).
+        side: the robot side the planner and the MHE modelled at the run's end
+            (:class:`~amhe_cli.control.robot_side.RobotSide`; one read mid-run, ``robot_read``, replaces the first).
     """
 
     success: bool
@@ -435,6 +448,11 @@ def run_robot_side(settings: "RunSettings", belief: Belief | None, truth: dict) 
     return robot_side(settings.kp, settings.kd, belief=belief)
 
 
+def model_torque_limit(task: Task, settings: "RunSettings") -> np.ndarray:
+    """(12,) the task scene's own motor torque limits [N·m], whatever robot side a run models."""
+    return Scene(task_scene_config(task, settings.planner.dt, settings.kp, settings.kd)).model.actuator_forcerange[:, 1]
+
+
 def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float,
                      phase: str | None = None) -> tuple[dict, float]:
     """The task's command (:meth:`~amhe_cli.control.tasks.Task.command`) from a measured plant state.
@@ -520,7 +538,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     mhe_deferred = 0
     mhe_steps: list[int] = []  # each informative update's step budget (MHESettings.fill)
     mhe_compute: list[float] = []  # each informative update's wall time [s]
-    estimator, planner = None, None
+    read_times: list[float] = []  # each read of the robot's servo and motors: wall time [s]
+    estimator, planner, reader = None, None, None
     plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
     costs, speeds, cmd_speeds, box_path = [], [], [], []
@@ -539,6 +558,12 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
                 note(describe_split(s, clocked))
+        read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
+        if read_on:
+            model_limit = model_torque_limit(task, s)
+            # on the wall clock a read (the recording's last seconds and a least-squares fit, 0.05–0.3 s) runs
+            # beside the planner; in lock-step at its time, so a run repeats
+            reader = ThreadPoolExecutor(1, thread_name_prefix="amhe-robot-read") if clocked else None
     except BaseException as exc:
         plant.close(f"{type(exc).__name__}: {exc}")
         if planner is not None:
@@ -579,6 +604,30 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
+        next_read, reading, mhe_side = READ_FROM, None, None  # the robot read's next time, its job, the MHE's due side
+
+        def read_now():  # never raises: a read that fails leaves the robot as modelled
+            t0 = time.perf_counter()
+            try:
+                return read_robot(plant.joint_record(READ_WINDOW), s.kp, model_limit, READ_SAMPLES), None
+            except Exception as exc:  # noqa: BLE001
+                return None, f"reading the robot from its joint efforts failed ({type(exc).__name__}: {exc})"
+            finally:
+                read_times.append(time.perf_counter() - t0)
+
+        def take_read(answer, t: float) -> None:
+            nonlocal side, mhe_side
+            read, error = answer
+            if error is not None:
+                warn(f"t={t:.2f} s: {error}; the planner keeps its robot")
+            new = None if read is None else follow(side, read, s.kp, s.kd, model_limit)
+            if new is None:
+                return
+            side = mhe_side = new
+            kept = [] if planner.edit_models(lambda mdl: write_robot(mdl, new)) else ["the GPU planner keeps its own"]
+            warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; the planner and the "
+                 "MHE model it so from now on" + (f" ({kept[0]})" if kept else ""))
+
         m = plant.measure()
         while m.t < task.duration - 1e-9:
             t, q, v = m.t, m.qpos, m.qvel
@@ -672,6 +721,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                         swap(*_to_planner(res, estimator.mhe.space, space), now, window)
                 for text in estimator.take_errors():
                     warn(text)
+                if mhe_side is not None and not estimator.busy:
+                    if not estimator.mhe.edit_models(lambda mdl: write_robot(mdl, mhe_side)):
+                        warn(f"t={now:.2f} s: the MHE on the GPU keeps the robot it started with")
+                    mhe_side = None
                 if now >= next_update - 1e-9:
                     # the wall clock defers an update while the last one runs or the thread rests (the planner's
                     # core share comes first); the lock-step loop waited for it above: submit never finds it busy
@@ -680,6 +733,16 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
                         pending = True
                     next_update += s.mhe.every
+            if read_on:
+                if reading is not None and reading.done():
+                    take_read(reading.result(), now)
+                    reading = None
+                if now >= next_read - 1e-9 and reading is None:
+                    if reader is None:
+                        take_read(read_now(), now)
+                    else:
+                        reading = reader.submit(read_now)
+                    next_read = now + READ_EVERY
             for text in plant.take_messages():
                 warn(f"t={now:.2f} s: {text}")
             if progress is not None:
@@ -696,6 +759,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         planner.close()
         if estimator is not None:
             estimator.close()
+        if reader is not None:
+            reader.shutdown(wait=True)
     if estimator is not None and mhe_deferred:
         messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator within "
                         + (f"{mhe_duty:.0%} of a core" if mhe_duty < 1 else f"its {mhe_threads} core(s)")
@@ -703,6 +768,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     if clocked and mhe_compute:  # what the estimator's core gave it: read beside the deferrals and fill's budget
         messages.append(f"MHE updates took a median {np.median(mhe_compute):.3f} s ({min(mhe_compute):.3f}–"
                         f"{max(mhe_compute):.3f}) of the {s.mhe.every:g} s between them, {len(mhe_compute)} updates")
+    if read_times:
+        messages.append(f"the robot was read from its joint efforts {len(read_times)} times, a median "
+                        f"{np.median(read_times):.3f} s each ({max(read_times):.3f} at most)")
     if mhe_steps and s.mhe.fill is not None:
         messages.append(f"MHE step budget per candidate: median {int(np.median(mhe_steps))}, {min(mhe_steps)}–"
                         f"{max(mhe_steps)} over {len(mhe_steps)} updates (mhe fill {s.mhe.fill:g}: from max_steps "

@@ -252,6 +252,17 @@ class Planner:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def edit_models(self, edit) -> bool:
+        """Apply ``edit(model)`` (in place) to every model the planner rolls out, from the next plan on: what is
+        not a belief parameter, such as a robot's servo read mid-run (:mod:`~amhe_cli.control.robot_side`).
+        Returns False where the samples roll out on the GPU (its worlds keep the model they were made with)."""
+        if self.gpu is not None:
+            return False
+        if self.space.scene.model is not self.pool.template:  # the space rewrites its fields from this one
+            edit(self.space.scene.model)
+        self.pool.edit_models(edit)
+        return True
+
     def set_params(self, values: np.ndarray) -> None:
         """Write a parameter vector (flat coordinates of ``space``) into every planner model copy."""
         self._belief = np.array(values, dtype=float)  # the GPU backend writes it into its worlds

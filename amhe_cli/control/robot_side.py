@@ -35,6 +35,7 @@ import numpy as np
 
 from amhe_cli.estimation.belief import Belief
 from amhe_cli.estimation.gains import applied_limit, fit_gains, spread
+from amhe_cli.model.scene import set_pd_gains, set_torque_limit
 
 #: Shares of the commanded gains outside this range are taken as a belief that does not describe this
 #: servo (another controller's log, a fit gone wrong): the model keeps the run's gains and says so.
@@ -136,39 +137,145 @@ def _scalar(v) -> float | None:
     return float(np.mean(np.asarray(v, dtype=float)))
 
 
+@dataclass(frozen=True)
+class RobotRead:
+    """What a recording's own joint efforts say of the robot's servo and motors (:func:`read_robot`).
+
+    Attributes:
+        servo: the share of the commanded Kp the servo delivered (median over the joints whose fit is well
+            posed, :data:`READ_STD`).
+        limit_share: the share of the model's torque limits where the efforts plateaued, 1.0 where they did
+            not (:func:`~amhe_cli.estimation.gains.applied_limit`).
+        joints: how many joints the servo share was read on.
+        delay: the commands' delay the fit chose [s].
+    """
+
+    servo: float
+    limit_share: float
+    joints: int
+    delay: float
+
+
+#: A run on the wall clock reads its robot (:func:`read_robot`) from READ_FROM [s] on, every READ_EVERY [s],
+#: over the recording's last READ_WINDOW [s] (``RunSettings.robot_read``): walking, not standing, shows the
+#: servo, and windows that overlap hold the plateaus of a push.
+READ_FROM, READ_EVERY, READ_WINDOW = 5.0, 5.0, 10.0
+#: Samples a read mid-run fits the servo law on (:func:`~amhe_cli.estimation.gains.fit_gains`'s ``max_samples``):
+#: a 10 s window thinned to these reads the emulated Go1's servo as the whole recording does, in a fraction of
+#: the time, on a thread that shares the planner's cores.
+READ_SAMPLES = 1500
+#: A joint's fitted Kp counts towards the servo share only where its standard error is under this fraction of
+#: it, and a read needs :data:`READ_JOINTS` such joints: a few seconds of standing, with joint errors of a
+#: hundredth of a radian, give Kp to tens of percent and say nothing.
+READ_STD, READ_JOINTS = 0.02, 4
+
+
+def read_robot(traj, kp: float, model_limit, max_samples: int | None = None) -> RobotRead | None:
+    """The servo share and the motors' limit share a recording's joint efforts show (module doc).
+
+    Args:
+        traj: a :class:`~amhe_cli.io.trajectory.Trajectory` with ``joint_effort`` (T, 12) [N·m] and ``ctrl``
+            (T, 12) the commanded joint targets [rad].
+        kp: the commanded Kp [N·m/rad] (every joint).
+        model_limit: (12,) the model's motor torque limits [N·m].
+        max_samples: fit on about this many samples (None: all; :data:`READ_SAMPLES` mid-run).
+    Returns:
+        :class:`RobotRead`, or None where the recording has no efforts or too few well-posed joints.
+    """
+    fit = fit_gains(traj, max_samples)
+    if fit is None:
+        return None
+    good = fit.ok & (fit.kp_std < READ_STD * np.abs(fit.kp))
+    if good.sum() < READ_JOINTS:
+        return None
+    model_limit = np.asarray(model_limit, dtype=float)
+    limit, _ = applied_limit(fit, model_limit)
+    share = 1.0 if limit is None else float(np.median(np.asarray(limit) / model_limit))
+    return RobotRead(float(np.median(fit.kp[good])) / kp, share, int(good.sum()), float(fit.delay))
+
+
+def _planned(side: RobotSide, kp: float, model_limit: np.ndarray) -> tuple[float, float]:
+    """The servo share and the limit share ``side`` models."""
+    limit = 1.0 if side.torque_limit is None else float(np.median(np.asarray(side.torque_limit) / model_limit))
+    return float(np.mean(side.kp)) / kp, limit
+
+
+def unlike(read: RobotRead, side: RobotSide, kp: float, model_limit) -> tuple[bool, bool]:
+    """Whether ``read`` shows a servo, and motors, unlike ``side``'s by more than :data:`CHECK_SHARE`.
+
+    Motors weaker than modelled only: efforts that never plateau cannot show a stronger one.
+    """
+    servo, limit = _planned(side, kp, np.asarray(model_limit, dtype=float))
+    return abs(read.servo - servo) > CHECK_SHARE * servo, read.limit_share < (1 - CHECK_SHARE) * limit
+
+
+def follow(side: RobotSide, read: RobotRead, kp: float, kd: float, model_limit) -> RobotSide | None:
+    """The robot side a run's planner and MHE take on from a read of the robot mid-run, or None (as modelled).
+
+    Where the servo differs (:func:`unlike`), both gains become the read share of the commanded ones: a motor
+    that delivers less gives that share of the whole law ``Kp (q* − q) − Kd q̇`` (the least-squares Kd is
+    biased low by the joint velocity's noise, :data:`~amhe_cli.estimation.gains.DISAGREE`, so it is not read
+    on its own). Where the motors plateau lower, every limit becomes that share of the model's. The payload
+    and the shell's friction stay ``side``'s (they need rollouts: ``identify``).
+
+    Args:
+        side: what the planner models now.
+        read: :func:`read_robot` of the run so far.
+        kp, kd: the run's commanded gains (every joint).
+        model_limit: (12,) the model's motor torque limits [N·m].
+    """
+    model_limit = np.asarray(model_limit, dtype=float)
+    servo, motors = unlike(read, side, kp, model_limit)
+    if not (servo or motors):
+        return None
+    out = side
+    if servo:
+        out = replace(out, kp=(kp * read.servo,) * 12, kd=(kd * read.servo,) * 12)
+    if motors:
+        out = replace(out, torque_limit=tuple(float(x) for x in read.limit_share * model_limit))
+    now, limit = _planned(out, kp, model_limit)
+    return replace(out, source=f"its own joint efforts read the servo at {now:.2f} × the commanded gains and the "
+                               f"motors at {limit:.0%} of the model's torque limits")
+
+
+def write_robot(model, side: RobotSide) -> None:
+    """Write ``side``'s servo gains and torque limits into ``model`` (in place; limits only where it has some)."""
+    set_pd_gains(model, side.kp, side.kd)
+    if side.torque_limit is not None:
+        set_torque_limit(model, side.torque_limit)
+
+
 def check_run(traj, side: RobotSide, kp: float, model_limit) -> str | None:
     """One line where a run's own recording shows a robot unlike the one its planner modelled, else None.
 
-    The recording's joint efforts against its commands (:func:`~amhe_cli.estimation.gains.fit_gains`: the
-    servo law ``τ = Kp (q* − q) − Kd q̇ + b`` with the commands' delay, and where the efforts plateau short of
-    it) give the share of the commanded Kp the servo delivered and the share of the model's torque limits the
-    motors reached (:func:`~amhe_cli.estimation.gains.applied_limit`). Either more than :data:`CHECK_SHARE`
-    from the planner's (``side``) is reported, with what reads the robot and gives it to the next run. Motors
-    weaker than the planner's only: efforts that never plateau cannot show a stronger one. The payload needs
-    rollouts (``identify`` fits it) and is not checked here.
+    The recording's joint efforts against its commands (:func:`read_robot`, by
+    :func:`~amhe_cli.estimation.gains.fit_gains`: the servo law ``τ = Kp (q* − q) − Kd q̇ + b`` with the
+    commands' delay, and where the efforts plateau short of it) give the share of the commanded Kp the servo
+    delivered and the share of the model's torque limits the motors reached
+    (:func:`~amhe_cli.estimation.gains.applied_limit`). Either more than :data:`CHECK_SHARE` from the
+    planner's (``side``, :func:`unlike`) is reported, with what reads the robot and gives it to the next run.
+    The payload needs rollouts (``identify`` fits it) and is not checked here.
 
     Args:
         traj: the run's :class:`~amhe_cli.io.trajectory.Trajectory` (``joint_effort`` (T, 12) [N·m],
             ``ctrl`` (T, 12) the commanded joint targets [rad]).
-        side: the :class:`RobotSide` the planner and the MHE modelled.
+        side: the :class:`RobotSide` the planner and the MHE modelled (at the run's end).
         kp: the run's commanded Kp [N·m/rad] (every joint).
         model_limit: (12,) the model's motor torque limits [N·m].
     Returns:
         the line, or None (no efforts, too few samples, or the robot as modelled).
     """
-    fit = fit_gains(traj)
-    if fit is None or not fit.ok.any():
-        return None
     model_limit = np.asarray(model_limit, dtype=float)
+    read = read_robot(traj, kp, model_limit)
+    if read is None:
+        return None
+    servo, motors = unlike(read, side, kp, model_limit)
+    planned, planned_l = _planned(side, kp, model_limit)
     found = []
-    read, planned = float(np.median(fit.kp[fit.ok])) / kp, float(np.mean(side.kp)) / kp
-    if abs(read - planned) > CHECK_SHARE * planned:
-        found.append(f"its servo gave {read:.2f} × the commanded Kp where the planner modelled {planned:.2f}")
-    limit, _ = applied_limit(fit, model_limit)
-    read_l = 1.0 if limit is None else float(np.median(np.asarray(limit) / model_limit))
-    planned_l = 1.0 if side.torque_limit is None else float(np.median(np.asarray(side.torque_limit) / model_limit))
-    if read_l < (1 - CHECK_SHARE) * planned_l:
-        found.append(f"its motors plateaued at {read_l:.0%} of the model's torque limits where the planner "
+    if servo:
+        found.append(f"its servo gave {read.servo:.2f} × the commanded Kp where the planner modelled {planned:.2f}")
+    if motors:
+        found.append(f"its motors plateaued at {read.limit_share:.0%} of the model's torque limits where the planner "
                      f"modelled {planned_l:.0%}")
     if not found:
         return None

@@ -96,7 +96,7 @@ class GainFit:
                 "command_delay_s": round(float(self.delay), 4)}
 
 
-def fit_gains(traj: Trajectory) -> GainFit | None:
+def fit_gains(traj: Trajectory, max_samples: int | None = None) -> GainFit | None:
     """Least-squares fit of ``τ = Kp (q* − q) − Kd q̇ + b`` per joint (module docstring), with the command delay.
 
     Uses samples where joint states and commands were observed and the effort
@@ -111,17 +111,21 @@ def fit_gains(traj: Trajectory) -> GainFit | None:
 
     Args:
         traj: a trajectory with ``joint_effort`` (T, 12).
+        max_samples: fit the gains on about this many samples, evenly thinned (None: all; the delay is chosen
+            on at most :data:`DELAY_SAMPLES`); the plateaus are read on every sample either way. A read mid-run
+            (:func:`~amhe_cli.control.robot_side.read_robot`) thins, beside the planner.
     Returns:
         the :class:`GainFit`, or None when the log has no efforts.
     """
     if traj.joint_effort is None:
         return None
-    every = max(1, len(traj) // DELAY_SAMPLES)  # the delay is chosen on a thinned log, the gains fitted on all
+    cap = DELAY_SAMPLES if max_samples is None else min(DELAY_SAMPLES, max_samples)
+    every = max(1, len(traj) // cap)  # the delay is chosen on a thinned log, the gains fitted on all (or max_samples)
     scores = []
     for k in range(int(round(MAX_DELAY / traj.dt)) + 1):
-        fit = _fit_delayed(traj, k, every)
+        fit = _fit_delayed(traj, k, every, plateaus=False)
         scores.append(float(np.mean(fit.residual_rms[fit.ok])) if fit.ok.any() else np.inf)
-    return _fit_delayed(traj, int(np.argmin(scores)))
+    return _fit_delayed(traj, int(np.argmin(scores)), 1 if max_samples is None else max(1, len(traj) // max_samples))
 
 
 def delayed(a: np.ndarray, k: int, fill=None) -> np.ndarray:
@@ -133,18 +137,20 @@ def delayed(a: np.ndarray, k: int, fill=None) -> np.ndarray:
     return np.concatenate([head, a[:-k]])
 
 
-def _fit_delayed(traj: Trajectory, k: int, every: int = 1) -> GainFit:
+def _fit_delayed(traj: Trajectory, k: int, every: int = 1, plateaus: bool = True) -> GainFit:
     """:func:`fit_gains` with the commands acting ``k`` grid steps after their stamps, on every ``every``-th
-    sample."""
+    sample (the plateaus, where asked, on all)."""
     n_t = len(traj)
-    mask = np.zeros(n_t, dtype=bool)
-    mask[::every] = True
+    seen = np.ones(n_t, dtype=bool)  # every sample observed: the plateaus are read on these
     for role in ("joint_states", "joint_commands"):
-        mask &= np.asarray(traj.observed.get(role, np.ones(n_t, dtype=bool)), dtype=bool)
+        seen &= np.asarray(traj.observed.get(role, np.ones(n_t, dtype=bool)), dtype=bool)
     ctrl = delayed(traj.ctrl, k)  # the command acting at t is the one stamped at t - k, observed there
     if k:
-        mask &= delayed(np.asarray(traj.observed.get("joint_commands", np.ones(n_t, dtype=bool)), dtype=bool), k,
+        seen &= delayed(np.asarray(traj.observed.get("joint_commands", np.ones(n_t, dtype=bool)), dtype=bool), k,
                         fill=False)
+    mask = np.zeros(n_t, dtype=bool)  # the samples the gains are fitted on
+    mask[::every] = True
+    mask &= seen
     tau = traj.joint_effort
     err = ctrl - traj.joint_pos
     vel = traj.joint_vel
@@ -170,8 +176,8 @@ def _fit_delayed(traj: Trajectory, k: int, every: int = 1) -> GainFit:
         out["kp_std"][j], out["kd_std"][j] = np.sqrt(np.diag(cov)[:2])
         out["rms"][j] = np.sqrt(s2)
         ok[j] = coef[0] > 0 and coef[1] >= 0
-        if ok[j]:
-            plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], mask,
+        if ok[j] and plateaus:
+            plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], seen,
                                   out["rms"][j])
     return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok,
                    plateau, k * traj.dt)

@@ -29,7 +29,7 @@ class RolloutPool:
     """Batched open-loop rollouts of one model template under many parameter sets.
 
     Args:
-        model: template ``MjModel``; never modified.
+        model: template ``MjModel``; never modified but by :meth:`edit_models`.
         nthread: worker threads (default: all CPUs available).
 
     Use as a context manager or call :meth:`close`.
@@ -60,6 +60,14 @@ class RolloutPool:
         while len(self._models) < n:
             self._models.append(copy.copy(self.template))
         return self._models[:n]
+
+    def edit_models(self, edit) -> None:
+        """Apply ``edit(model)`` (in place) to the template and every model copy, so copies made later carry it
+        too: what is not a parameter the candidates write (a robot's servo read mid-run,
+        :mod:`~amhe_cli.control.robot_side`). A :class:`~amhe_cli.model.params.ParameterSpace` rewrites the
+        fields it owns from its scene's model at every write: edit that model too."""
+        for m in [self.template, *self._models]:
+            edit(m)
 
     def describe(self) -> str:
         """One line for the device announcement."""

@@ -317,6 +317,20 @@ def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
     model.actuator_biasprm[:, 2] = -kd
 
 
+def set_torque_limit(model: mujoco.MjModel, limit) -> None:
+    """Write the motors' torque limits [N·m] (scalar or (nu,), positive) into the position servos' force range
+    of ``model`` (in place).
+
+    Raises:
+        AmheError: a limit that is not positive.
+    """
+    limit = np.broadcast_to(np.asarray(limit, dtype=float), (model.nu,))
+    if not np.all(limit > 0):
+        raise AmheError(f"torque limits {list(limit)}: expected positive N·m for every joint")
+    model.actuator_forcerange[:] = np.column_stack([-limit, limit])
+    model.actuator_forcelimited[:] = 1
+
+
 def _build(cfg: SceneConfig) -> mujoco.MjModel:
     if len(cfg.regions) == 0:
         raise AmheError("scene needs at least one floor region")
@@ -366,11 +380,7 @@ def _build(cfg: SceneConfig) -> mujoco.MjModel:
     if cfg.kp is not None or cfg.kd is not None:
         set_pd_gains(model, cfg.kp if cfg.kp is not None else DEFAULT_KP, cfg.kd if cfg.kd is not None else DEFAULT_KD)
     if cfg.torque_limit is not None:
-        limit = np.broadcast_to(np.asarray(cfg.torque_limit, dtype=float), (model.nu,))
-        if not np.all(limit > 0):
-            raise AmheError(f"torque limits {list(limit)}: expected positive N·m for every joint")
-        model.actuator_forcerange[:] = np.column_stack([-limit, limit])
-        model.actuator_forcelimited[:] = 1
+        set_torque_limit(model, cfg.torque_limit)
     return model
 
 

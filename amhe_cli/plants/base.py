@@ -93,6 +93,13 @@ class Plant(ABC):
     def trajectory(self, last: float | None = None) -> Trajectory:
         """The recording so far (or its ``last`` seconds) on the ``record_dt`` grid."""
 
+    def joint_record(self, last: float) -> Trajectory:
+        """The joints' last ``last`` seconds (states, targets, efforts) on the ``record_dt`` grid, as cheaply as
+        the plant can give them: what a read of the robot's servo needs, mid-run, beside the planner
+        (:func:`~amhe_cli.control.robot_side.read_robot`). Other streams may be left unprocessed (default:
+        :meth:`trajectory`)."""
+        return self.trajectory(last)
+
     def recording(self) -> Trajectory:
         """The whole recording as it should be logged (default: :meth:`trajectory`)."""
         return self.trajectory()

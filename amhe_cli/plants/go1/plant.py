@@ -318,6 +318,11 @@ class Go1Plant(Plant):
         keep = int(np.searchsorted(traj.t, min(captured), side="right")) if captured else len(traj)
         return traj.slice(0, max(keep, 1)) if keep < len(traj) else traj
 
+    def joint_record(self, last: float) -> Trajectory:
+        """The joints' last ``last`` seconds as :meth:`trajectory` gives them, the trunk and the box as the
+        estimator had them (no motion-capture resampling): a read of the servo, beside the planner."""
+        return self._resampled(last, poses=False)[0]
+
     def recording(self) -> Trajectory:
         """The recording as a log of these streams would hold it: the box pose only where a mocap sample
         arrived (at the nearest 2 ms grid point, the sample's own values), so a reader resamples and
@@ -334,7 +339,7 @@ class Go1Plant(Plant):
         traj.observed["box"] = seen
         return traj
 
-    def _resampled(self, last: float | None) -> tuple[Trajectory, dict]:
+    def _resampled(self, last: float | None, poses: bool = True) -> tuple[Trajectory, dict]:
         """The recording (or its ``last`` seconds) on a uniform ``record_dt`` grid, and the raw mocap samples.
 
         Joint targets are held (zero-order) between ticks; joints, the trunk's
@@ -344,7 +349,8 @@ class Go1Plant(Plant):
         rather than the estimator's poses carried forward between them, whose
         8 ms sawtooth differentiates into metres per second of noise. The raw
         samples are ``role -> [(t [s], pos (3,), quat (4,) wxyz, seq)]`` from
-        just before the grid's start on.
+        just before the grid's start on; without ``poses`` the positions are the
+        estimator's and no raw samples are given.
         """
         with self._lock:
             t = np.array(self._rec["t"])
@@ -359,7 +365,7 @@ class Go1Plant(Plant):
             t_from = t[0] if len(t) else 0.0
             late = self.pose_latency
             raw = {key: [(r[0] - late, *r[1:])
-                         for r in v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]]
+                         for r in v[max(bisect.bisect_left(v, t_from, key=lambda r: r[0]) - 1, 0):]] if poses else []
                    for key, v in self._raw.items()}
         sc, dt = self.scene, self.record_dt
         if len(t) == 0:
