@@ -61,9 +61,8 @@ from amhe_cli.control.gait import GAITS
 from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
-from amhe_cli.control.robot_side import READ_EVERY, READ_FROM, READ_SAMPLES, READ_WINDOW, RobotSide, follow, read_robot
-from amhe_cli.control.robot_side import robot_side
-from amhe_cli.control.robot_side import write_robot
+from amhe_cli.control.robot_side import (READ_EVERY, READ_FROM, READ_SAMPLES, READ_WINDOW, RobotSide, follow,
+                                         read_robot, robot_side, write_robot)
 from amhe_cli.model.rollout import default_threads
 from amhe_cli.model.scene import Scene, SceneConfig
 from amhe_cli.control.tasks import Task
@@ -561,8 +560,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
         if read_on:
             model_limit = model_torque_limit(task, s)
-            # on the wall clock a read (the recording's last seconds and a least-squares fit, 0.05–0.3 s) runs
-            # beside the planner; in lock-step at its time, so a run repeats
+            # on the wall clock a read (the joints' last seconds and a least-squares fit: 0.1 s on an idle core,
+            # up to 0.8 s beside a loaded planner on 2 cores) runs in a thread; in lock-step at its time, so a
+            # run repeats
             reader = ThreadPoolExecutor(1, thread_name_prefix="amhe-robot-read") if clocked else None
     except BaseException as exc:
         plant.close(f"{type(exc).__name__}: {exc}")

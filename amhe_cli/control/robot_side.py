@@ -22,9 +22,12 @@ emulated Go1 with 1.5 kg on its trunk, robot–box friction 0.8 and motors at 85
 recording of it; the online MHE, whose model is the planner's, held T1's box within 10 % in 0 of 8 runs
 without that belief and 6 of 8 with it.
 
-A run that was planned for one robot and recorded another says so at its end (:func:`check_run`): its own
-joint efforts against its commands give the servo and where the motors plateau, as ``identify`` reads them.
-``amhe run --robot-belief`` takes the robot side from one belief and the box from another (``--belief``).
+A run on the wall clock reads its robot while it runs (``RunSettings.robot_read``): every :data:`READ_EVERY`
+seconds its own joint efforts against its commands give the servo and where the motors plateau
+(:func:`read_robot`, as ``identify`` reads them), and where either is unlike what the planner models the
+planner and the MHE take the robot as read (:func:`follow`, :func:`write_robot`). What is still unlike at
+the end is said then (:func:`check_run`). ``amhe run --robot-belief`` takes the robot side from one belief
+and the box from another (``--belief``).
 """
 
 from __future__ import annotations
