@@ -205,14 +205,54 @@ def test_relay_follows_a_plan_then_holds_softly_when_plans_stop():
         target = STAND_JOINTS + 0.05
         relay.set_plan(np.tile(target, (50, 1)), 0.01, time.monotonic())
         time.sleep(0.03)
-        assert relay.phase == "run"
+        assert relay.phase == "run" and relay.run_servo
         assert np.allclose(link.sent[-1][1].q, target, atol=1e-4)
         time.sleep(0.1)  # > 3 planner periods without a plan
-        assert relay.phase == "hold"
+        assert relay.phase == "hold" and not relay.run_servo
         cmd = link.sent[-1][1]
         assert (cmd.kp == relay.safety.settings.hold_kp).all() and (cmd.mode == MODE_SERVO).all()
     finally:
         relay.stop()
+
+
+def test_a_soft_hold_is_not_recorded_as_the_runs_servo():
+    """A stale plan's soft hold drives the joints with other gains (Kp 30) than the run's: the relay says so
+    (``run_servo``) and the Go1 plant's recording leaves those ticks' commands unstated, so a fit of the servo
+    law (``identify``, the run's read of its robot) never takes the hold's efforts for weak motors."""
+    from amhe_cli.control.closed_loop import task_scene_config
+    from amhe_cli.control.tasks import get_task
+    from amhe_cli.model.scene import Scene
+    from amhe_cli.plants.go1.mocap import PoseSample
+    from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
+
+    class FreshPoses:  # motion capture that always has a pose just now
+        def latest(self, name):
+            now = time.monotonic()
+            return PoseSample(name, np.array([0.0, 0.0, 0.27]), np.array([1.0, 0, 0, 0]), now, now, int(now * 1e3))
+
+        def close(self):
+            pass
+
+    link = FakeLink()
+    plant = Go1Plant(Scene(task_scene_config(get_task("t1"), 0.002, 100.0, 4.0)),
+                     Go1Settings(robot=("127.0.0.1", 1), arm=True, planner_period=0.02,
+                                 safety=fast_settings(), mocap_latency=0.0), link=link, poses=FreshPoses())
+    relay = plant.relay
+    plant._t0 = time.monotonic()
+    relay.start()
+    try:
+        assert relay.wait_ready(2.0)
+        relay.set_plan(np.tile(STAND_JOINTS + 0.05, (50, 1)), 0.01, time.monotonic())
+        time.sleep(0.03)
+        assert relay.phase == "run" and relay.run_servo
+        time.sleep(0.15)  # > 3 planner periods without a plan
+        assert relay.phase == "hold" and not relay.run_servo
+    finally:
+        relay.stop()
+    traj = plant.joint_record(10.0)
+    stated = traj.observed["joint_commands"]
+    assert stated[5:len(stated) // 4].all() and not stated[-10:].any()  # the ramp and the run; the hold
+    assert traj.observed["joint_states"].all()
 
 
 def test_relay_holds_the_stand_while_mocap_is_stale():

@@ -127,7 +127,7 @@ class Go1Plant(Plant):
         self._lock = threading.Lock()
         self._t0: float | None = None
         self._measured_at = 0.0
-        self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "tau", "imu", "feet")}
+        self._rec: dict[str, list] = {k: [] for k in ("t", "qpos", "qvel", "ctrl", "servo", "tau", "imu", "feet")}
         self._tau = np.zeros(12)  # the last tauEst the robot reported [N·m]
         self._raw: dict[str, list] = {"base": [], "box": []}  # (t, pos (3,), quat (4,)) as each pose arrived
         self._ctrl = scene.model.qpos0[scene.joint_qpos].copy()
@@ -201,6 +201,9 @@ class Go1Plant(Plant):
             self._rec["qpos"].append(qpos)
             self._rec["qvel"].append(qvel)
             self._rec["ctrl"].append(self._ctrl)
+            # a soft hold or damping acted with other gains than the log states: not a sample of its servo law
+            # (a dry run's targets, sent to nobody, stay as they were)
+            self._rec["servo"].append(self.relay.dry_run or self.relay.run_servo)
             if state is not None:
                 self._tau = np.asarray(state.tau_est, dtype=float)[:12]
             self._rec["tau"].append(self._tau)  # the joint efforts a log keeps: identify fits the servo from them
@@ -359,6 +362,7 @@ class Go1Plant(Plant):
             qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
+            servo = np.array(self._rec["servo"][k:], dtype=bool)
             tau = np.array(self._rec["tau"][k:]).reshape(len(t), 12)
             # the mocap samples from just before the window on (the MHE asks for the last second), each at
             # its arrival less the lateness of motion capture: when it was captured, on this machine's clock
@@ -382,8 +386,12 @@ class Go1Plant(Plant):
                 rt = np.array([r[0] for r in raw[key]])
                 vals = np.array([np.concatenate([r[1], r[2]]) for r in raw[key]])[:, :len(idx)]
                 qp[:, idx] = np.stack([np.interp(grid, rt, vals[:, j]) for j in range(len(idx))], axis=1)
-        held = ctrl[np.clip(np.searchsorted(t, grid, side="right") - 1, 0, None)] if len(t) else np.zeros((0, 12))
+        at = np.clip(np.searchsorted(t, grid, side="right") - 1, 0, None) if len(t) else np.zeros(0, dtype=int)
+        held = ctrl[at] if len(t) else np.zeros((0, 12))
         n = len(grid)
+        observed = {r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box")}
+        # the commands a log states are those of the servo at the run's gains: a soft hold's are not written
+        observed["joint_commands"] = servo[at] if len(t) else np.zeros(0, dtype=bool)
         return Trajectory(
             t=grid, dt=dt,
             base_pos=qp[:, sc.base_qpos[:3]], base_quat=quat_normalize(qp[:, sc.base_qpos[3:]]),
@@ -392,7 +400,7 @@ class Go1Plant(Plant):
             box_pos=qp[:, sc.box_qpos[:3]], box_quat=quat_normalize(qp[:, sc.box_qpos[3:]]),
             box_linvel=qv[:, sc.box_qvel[:3]], box_angvel=qv[:, sc.box_qvel[3:]],
             ctrl=held, joint_effort=interp(tau), kp=np.full(12, self.settings.kp), kd=np.full(12, self.settings.kd),
-            observed={r: np.ones(n, dtype=bool) for r in ("joint_states", "base", "box", "joint_commands")},
+            observed=observed,
             # the trunk's velocities are the estimator's (IMU and joints), not a difference of smoothed poses
             measured_velocity={"base": True, "joint_states": True, "box": False},
             meta={"source": "go1", "robot": f"{self.settings.robot[0]}:{self.settings.robot[1]}",

@@ -97,10 +97,12 @@ class Relay:
             observed plan interval counts).
         on_tick: called from the relay thread every period with
             ``(t, state or None, q_sent (12,), mode)``: ``t`` is ``time.monotonic()``,
-            ``mode`` the motor mode sent. Keep it short.
+            ``mode`` the motor mode sent (:attr:`run_servo` says whether at the run's gains). Keep it short.
         period: command period [s].
     Attributes:
         phase: current phase (:data:`PHASES`).
+        run_servo: the last command was the servo at the run's gains ``kp``/``kd`` — not the stale plan's
+            soft hold nor damping: its efforts are samples of the servo law a recording states.
         reason: why the relay entered ``damp`` (None until then).
         periods: measured command periods [s] (for jitter statistics; the last :data:`HISTORY`).
         busy: time each period's work took [s] (receive, check, interpolate, send, record).
@@ -119,6 +121,7 @@ class Relay:
         self.on_tick = on_tick
         self.period = period
         self.phase = "wait"
+        self.run_servo = False
         self.reason: str | None = None
         self.periods: deque[float] = deque(maxlen=HISTORY)
         self.busy: deque[float] = deque(maxlen=HISTORY)
@@ -321,6 +324,7 @@ class Relay:
                     self.link.send(cmd)
                 except Exception as exc:  # noqa: BLE001
                     self._trip(f"robot link failed: {exc}")
+            self.run_servo = q_sent is not None and mode == MODE_SERVO and self.phase != "hold"
             if self.on_tick is not None:
                 try:
                     self.on_tick(now, state, q_sent, mode)
