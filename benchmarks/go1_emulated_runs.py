@@ -12,10 +12,11 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
-from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``recoveries_why``
-holds [t, reason] of each fall-reflex recovery, ``robot_reads`` [t, servo share, limit share] of each read of
-the robot that the planner followed, ``mhe_deferred`` the MHE updates its core budget put
-off and ``mhe_update_s`` their median wall time [s]), then one row per (task, mode):
+from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``holds`` the relay's
+soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
+``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
+``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s]),
+then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
@@ -193,6 +194,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     records = run_records(recording)  # read once
     log = " ".join(records.get("amhe_run_log", {}).values())
     res["lost_box"] = log.count("lost the box")
+    res["holds"] = log.count("-> hold: ")  # the relay's soft holds of a stale plan
     # when each recovery started and why (a tilt, a height, a rate, or every sampled plan tilting):
     # the rows then tell which part of the loop pushed the trunk out of its envelope
     res["recoveries_why"] = [[float(t), why] for t, why in RECOVERY.findall(log)]
