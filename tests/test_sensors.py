@@ -200,6 +200,12 @@ def test_a_read_of_the_robot_mid_run_gives_the_planner_that_robot():
     # the servo alone differs (no plateau): the limits stay the model's
     only_servo = follow(nominal, replace(read, servo=0.8), 55.0, 3.0, MODEL_LIMIT)
     assert only_servo.torque_limit is None and only_servo.kp == pytest.approx((44.0,) * 12)
+    # efforts flat at half the limits on some joints while another delivered 90 % of its own: no motor limit
+    fit = fit_gains(weak)
+    assert applied_limit(fit, MODEL_LIMIT)[0] is not None and fit.peak.max() <= 0.5 * MODEL_LIMIT.max() + 1e-6
+    busy = replace(fit, peak=np.where(np.arange(12) == 2, 0.9 * MODEL_LIMIT, fit.peak))
+    limit, warns = applied_limit(busy, MODEL_LIMIT)
+    assert limit is None and "FR_calf_joint delivered 90% of its own" in warns[0]
     # too few well-posed joints say nothing
     model.joint_effort = None
     assert read_robot(model, 55.0, MODEL_LIMIT) is None

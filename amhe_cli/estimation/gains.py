@@ -72,6 +72,7 @@ class GainFit:
         limit: (12,) the torque [N·m] the joint's efforts plateaued at where the law asked for more,
             NaN where they did not (the module docstring).
         delay: how long after its stamp a command acted on the servo [s] (:func:`fit_gains`).
+        peak: (12,) the largest |effort| each joint delivered [N·m] (None: not read).
     """
 
     kp: np.ndarray
@@ -84,6 +85,7 @@ class GainFit:
     ok: np.ndarray
     limit: np.ndarray | None = None
     delay: float = 0.0
+    peak: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         """Plain-type summary for beliefs and ``--json``."""
@@ -179,8 +181,9 @@ def _fit_delayed(traj: Trajectory, k: int, every: int = 1, plateaus: bool = True
         if ok[j] and plateaus:
             plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], seen,
                                   out["rms"][j])
+    peak = np.array([np.nanmax(np.abs(tau[seen, j])) if seen.any() else 0.0 for j in range(n)])
     return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok,
-                   plateau, k * traj.dt)
+                   plateau, k * traj.dt, peak)
 
 
 def _plateau(tau: np.ndarray, law: np.ndarray, mask: np.ndarray, noise: float) -> float:
@@ -204,8 +207,9 @@ def applied_limit(fit: GainFit | None, model_limit: np.ndarray) -> tuple[tuple[f
         model_limit: (12,) the model's limits [N·m].
     Returns:
         (12,) limits [N·m] — every joint's model limit times the median share the plateaued joints show
-        (one motor type: the module docstring) — or None where no joint plateaued or the share is at
-        least :data:`LIMIT_SHARE`; and one-line warnings.
+        (one motor type: the module docstring) — or None where no joint plateaued, the share is at
+        least :data:`LIMIT_SHARE`, or a joint delivered more than that share of its own limit (by
+        :data:`SHORT_FRACTION`: then the flat efforts were no motor's limit); and one-line warnings.
     """
     if fit is None or fit.limit is None or not np.isfinite(fit.limit).any():
         return None, []
@@ -214,6 +218,12 @@ def applied_limit(fit: GainFit | None, model_limit: np.ndarray) -> tuple[tuple[f
     if share >= LIMIT_SHARE:
         return None, []
     names = ", ".join(GO1_JOINTS[j] for j in np.flatnonzero(seen))
+    if fit.peak is not None:
+        delivered = fit.peak / model_limit
+        if delivered.max() > (1 + SHORT_FRACTION) * share:
+            j = int(np.argmax(delivered))
+            return None, [f"the joint efforts sat flat at {share:.0%} of the model's torque limits on {names}, but "
+                          f"{GO1_JOINTS[j]} delivered {delivered[j]:.0%} of its own: not read as the motors' limit"]
     return tuple(float(x) for x in share * model_limit), [
         f"the joint efforts plateau at {share:.0%} of the model's torque limits ({spread(fit.limit[seen])} N·m on "
         f"{names}): modelling every motor's limit at that share (weaker motors or a low battery)"]
