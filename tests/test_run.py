@@ -1445,6 +1445,7 @@ def test_a_run_reads_its_robot_from_its_joint_efforts_and_plans_for_it(monkeypat
     result = run_task(task, belief(4.0, 0.5), s)
     told = [m for m in result.warnings if "not the one the planner modelled" in m]
     assert len(told) == 1 and "read the servo at 0.85 × the commanded gains" in told[0], result.messages
+    assert "the planner and the MHE model it so from now on" in told[0]
     assert result.side.kp == pytest.approx((85.0,) * 12, rel=0.01) and result.side.torque_limit is None
     assert len(edited) > s.planner.samples  # the planner's sample models and the MHE's
     for model in edited:

@@ -625,8 +625,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 return
             side = mhe_side = new
             kept = [] if planner.edit_models(lambda mdl: write_robot(mdl, new)) else ["the GPU planner keeps its own"]
-            warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; the planner and the "
-                 "MHE model it so from now on" + (f" ({kept[0]})" if kept else ""))
+            who = "the planner and the MHE model" if estimator is not None else "the planner models"
+            warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on"
+                 + (f" ({kept[0]})" if kept else ""))
 
         m = plant.measure()
         while m.t < task.duration - 1e-9:
