@@ -200,6 +200,7 @@ def test_a_read_of_the_robot_mid_run_gives_the_planner_that_robot():
     # the servo alone differs (no plateau): the limits stay the model's
     only_servo = follow(nominal, replace(read, servo=0.8), 55.0, 3.0, MODEL_LIMIT)
     assert only_servo.torque_limit is None and only_servo.kp == pytest.approx((44.0,) * 12)
+    assert follow(nominal, replace(read, servo=0.2), 55.0, 3.0, MODEL_LIMIT) is None  # no Go1's servo
     # efforts flat at half the limits on some joints while another delivered 90 % of its own: no motor limit
     fit = fit_gains(weak)
     assert applied_limit(fit, MODEL_LIMIT)[0] is not None and fit.peak.max() <= 0.5 * MODEL_LIMIT.max() + 1e-6

@@ -605,6 +605,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
         forecast = None  # the last plan's predicted tilt [rad] (the reflex's forecast trigger)
         next_read, reading, mhe_side = READ_FROM, None, None  # the robot read's next time, its job, the MHE's due side
+        read_failed = False  # a read that fails is said once
 
         def read_now():  # never raises: a read that fails leaves the robot as modelled
             t0 = time.perf_counter()
@@ -616,18 +617,19 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 read_times.append(time.perf_counter() - t0)
 
         def take_read(answer, t: float) -> None:
-            nonlocal side, mhe_side
+            nonlocal side, mhe_side, read_failed
             read, error = answer
-            if error is not None:
+            if error is not None and not read_failed:
+                read_failed = True
                 warn(f"t={t:.2f} s: {error}; the planner keeps its robot")
             new = None if read is None else follow(side, read, s.kp, s.kd, model_limit)
             if new is None:
                 return
             side = mhe_side = new
-            kept = [] if planner.edit_models(lambda mdl: write_robot(mdl, new)) else ["the GPU planner keeps its own"]
+            on_gpu = not planner.edit_models(lambda mdl: write_robot(mdl, new))
             who = "the planner and the MHE model" if estimator is not None else "the planner models"
             warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on"
-                 + (f" ({kept[0]})" if kept else ""))
+                 + (" (the GPU planner keeps its own)" if on_gpu else ""))
 
         m = plant.measure()
         while m.t < task.duration - 1e-9:

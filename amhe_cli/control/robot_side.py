@@ -27,8 +27,8 @@ seconds its own joint efforts against its commands give the servo and where the 
 (:func:`read_robot`, as ``identify`` reads them), and where either is unlike what the planner models the
 planner and the MHE take the robot as read (:func:`follow`, :func:`write_robot`); *measured* on the
 emulated robot above: 0 falls in 66 runs reading it, 4 in 36 without (docs/evaluation.md, "The run reads
-its robot"). What is still unlike at the end is said then (:func:`check_run`). ``amhe run --robot-belief`` takes the robot side from one belief
-and the box from another (``--belief``).
+its robot"). What is still unlike at the end is said then (:func:`check_run`). ``amhe run --robot-belief``
+takes the robot side from one belief and the box from another (``--belief``).
 """
 
 from __future__ import annotations
@@ -220,7 +220,8 @@ def follow(side: RobotSide, read: RobotRead, kp: float, kd: float, model_limit) 
     that delivers less gives that share of the whole law ``Kp (q* − q) − Kd q̇`` (the least-squares Kd is
     biased low by the joint velocity's noise, :data:`~amhe_cli.estimation.gains.DISAGREE`, so it is not read
     on its own). Where the motors plateau lower, every limit becomes that share of the model's. The payload
-    and the shell's friction stay ``side``'s (they need rollouts: ``identify``).
+    and the shell's friction stay ``side``'s (they need rollouts: ``identify``). A servo share outside
+    :data:`SERVO_SHARE` is no Go1's and is not followed.
 
     Args:
         side: what the planner models now.
@@ -229,6 +230,8 @@ def follow(side: RobotSide, read: RobotRead, kp: float, kd: float, model_limit) 
         model_limit: (12,) the model's motor torque limits [N·m].
     """
     model_limit = np.asarray(model_limit, dtype=float)
+    if not SERVO_SHARE[0] <= read.servo <= SERVO_SHARE[1]:  # no Go1's servo: a fit gone wrong is not followed
+        return None
     servo, motors = unlike(read, side, kp, model_limit)
     if not (servo or motors):
         return None
