@@ -573,6 +573,7 @@ def test_a_live_go1_window_reaches_the_mhe_as_the_reader_makes_a_log():
         plant._rec["qpos"].append(qpos)
         plant._rec["qvel"].append(np.zeros(scene.model.nv))
         plant._rec["ctrl"].append(np.zeros(12))
+        plant._rec["servo"].append(True)  # the servo at the run's gains (not a soft hold)
         plant._rec["tau"].append(np.zeros(12))
     traj = plant.trajectory(last=1.0)
     assert 0.95 <= traj.t[-1] - traj.t[0] <= 1.01
