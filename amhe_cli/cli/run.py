@@ -155,7 +155,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
                  extra_meta={"target": target, **({"robot": robot, "mocap": mocap, "armed": arm} if plant else {})},
                  more=lambda log: recorder.write(log, ViewFrames(frames.model, frames.regions, frames.goal)))
         if plant is not None and arm:  # the robot's own efforts against the model the run planned with
-            note = _robot_check(result, settings, task)
+            note = _robot_check(result, settings, plant.scene)
             if note:
                 result.warnings.append(note)
     finally:
@@ -224,16 +224,16 @@ def failure_reason(result, task) -> str | None:
     return f"run ended at t = {result.t_exec:.1f} s with {where}"
 
 
-def _robot_check(result, settings, task) -> str | None:
+def _robot_check(result, settings, scene) -> str | None:
     """:func:`~amhe_cli.control.robot_side.check_run` on an armed Go1 run's recording against the robot side
-    its planner modelled (``result.side``): one line where the robot was not that one. The run is over and
-    the robot damped: a check that fails says so, it never raises."""
-    from amhe_cli.control.closed_loop import model_torque_limit
+    its planner modelled (``result.side``), the motors' limits the plant's ``scene`` (the model's own): one line
+    where the robot was not that one. The run is over and the robot damped: a check that fails says so, it never
+    raises."""
     from amhe_cli.control.robot_side import check_run
     if result.side is None:  # the run stopped before it planned
         return None
     try:
-        return check_run(result.traj, result.side, settings.kp, model_torque_limit(task, settings))
+        return check_run(result.traj, result.side, settings.kp, scene.model.actuator_forcerange[:, 1])
     except Exception as e:  # noqa: BLE001 - advice after the run, never a new failure
         return f"could not check the robot against the planner's model ({type(e).__name__}: {e})"
 

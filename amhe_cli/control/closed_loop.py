@@ -447,11 +447,6 @@ def run_robot_side(settings: "RunSettings", belief: Belief | None, truth: dict) 
     return robot_side(settings.kp, settings.kd, belief=belief)
 
 
-def model_torque_limit(task: Task, settings: "RunSettings") -> np.ndarray:
-    """(12,) the task scene's own motor torque limits [N·m], whatever robot side a run models."""
-    return Scene(task_scene_config(task, settings.planner.dt, settings.kp, settings.kd)).model.actuator_forcerange[:, 1]
-
-
 def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float,
                      phase: str | None = None) -> tuple[dict, float]:
     """The task's command (:meth:`~amhe_cli.control.tasks.Task.command`) from a measured plant state.
@@ -559,7 +554,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 note(describe_split(s, clocked))
         read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
         if read_on:
-            model_limit = model_torque_limit(task, s)
+            model_limit = plant.scene.model.actuator_forcerange[:, 1].copy()  # the model's own, whatever it plans
             # on the wall clock a read (the joints' last seconds and a least-squares fit: 0.1 s on an idle core,
             # up to 0.8 s beside a loaded planner on 2 cores) runs in a thread; in lock-step at its time, so a
             # run repeats

@@ -258,9 +258,7 @@ class Planner:
         Returns False where the samples roll out on the GPU (its worlds keep the model they were made with)."""
         if self.gpu is not None:
             return False
-        if self.space.scene.model is not self.pool.template:  # the space rewrites its fields from this one
-            edit(self.space.scene.model)
-        self.pool.edit_models(edit)
+        self.pool.edit_models(edit, base=self.space.scene.model)
         return True
 
     def set_params(self, values: np.ndarray) -> None:

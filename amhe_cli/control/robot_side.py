@@ -150,14 +150,10 @@ class RobotRead:
             posed, :data:`READ_STD`).
         limit_share: the share of the model's torque limits where the efforts plateaued, 1.0 where they did
             not (:func:`~amhe_cli.estimation.gains.applied_limit`).
-        joints: how many joints the servo share was read on.
-        delay: the commands' delay the fit chose [s].
     """
 
     servo: float
     limit_share: float
-    joints: int
-    delay: float
 
 
 #: A run on the wall clock reads its robot (:func:`read_robot`) from READ_FROM [s] on, every READ_EVERY [s],
@@ -195,7 +191,7 @@ def read_robot(traj, kp: float, model_limit, max_samples: int | None = None) -> 
     model_limit = np.asarray(model_limit, dtype=float)
     limit, _ = applied_limit(fit, model_limit)
     share = 1.0 if limit is None else float(np.median(np.asarray(limit) / model_limit))
-    return RobotRead(float(np.median(fit.kp[good])) / kp, share, int(good.sum()), float(fit.delay))
+    return RobotRead(float(np.median(fit.kp[good])) / kp, share)
 
 
 def _planned(side: RobotSide, kp: float, model_limit: np.ndarray) -> tuple[float, float]:

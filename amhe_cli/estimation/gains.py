@@ -184,7 +184,8 @@ def _fit_delayed(traj: Trajectory, k: int, every: int = 1, plateaus: bool = True
         if ok[j] and plateaus:
             plateau[j] = _plateau(tau[:, j], coef[0] * err[:, j] - coef[1] * vel[:, j] + coef[2], seen,
                                   out["rms"][j])
-    peak = np.array([np.nanmax(np.abs(tau[seen, j])) if seen.any() else 0.0 for j in range(n)])
+    # what each motor delivered, against which a plateau is judged (applied_limit): the final fit's only
+    peak = np.nanmax(np.abs(tau[seen]), axis=0) if plateaus and seen.any() else None
     return GainFit(out["kp"], out["kd"], out["kp_std"], out["kd_std"], out["offset"], out["rms"], samples, ok,
                    plateau, k * traj.dt, peak)
 

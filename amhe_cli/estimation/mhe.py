@@ -301,9 +301,7 @@ class MovingHorizonEstimator:
         with)."""
         if not hasattr(self.pool, "edit_models"):
             return False
-        if self.space.scene.model is not self.pool.template:  # the space rewrites its fields from this one
-            edit(self.space.scene.model)
-        self.pool.edit_models(edit)
+        self.pool.edit_models(edit, base=self.space.scene.model)
         return True
 
     def close(self) -> None:

@@ -61,12 +61,13 @@ class RolloutPool:
             self._models.append(copy.copy(self.template))
         return self._models[:n]
 
-    def edit_models(self, edit) -> None:
+    def edit_models(self, edit, base: mujoco.MjModel | None = None) -> None:
         """Apply ``edit(model)`` (in place) to the template and every model copy, so copies made later carry it
         too: what is not a parameter the candidates write (a robot's servo read mid-run,
-        :mod:`~amhe_cli.control.robot_side`). A :class:`~amhe_cli.model.params.ParameterSpace` rewrites the
-        fields it owns from its scene's model at every write: edit that model too."""
-        for m in [self.template, *self._models]:
+        :mod:`~amhe_cli.control.robot_side`). ``base``: the model a
+        :class:`~amhe_cli.model.params.ParameterSpace` rewrites its fields from at every write (its scene's),
+        edited too where it is not the template."""
+        for m in {id(m): m for m in (base, self.template, *self._models) if m is not None}.values():
             edit(m)
 
     def describe(self) -> str:
