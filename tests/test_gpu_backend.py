@@ -16,6 +16,7 @@ import pytest
 from helpers import amhe, one_line_error
 
 from amhe_cli.control.maneuver import lunge_schedule
+from amhe_cli.control.robot_side import RobotSide, write_robot
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import sample_clips
 from amhe_cli.estimation.cost import RolloutCost
@@ -352,9 +353,10 @@ def test_planner_on_cuda_without_warp_is_one_line():
 
 @pytest.mark.gpu
 @gpu
-def test_gpu_planner_scores_as_the_cpu_planner_and_follows_the_belief():
+def test_gpu_planner_scores_as_the_cpu_planner_and_follows_the_belief_and_the_robot_read():
     """The same knots from the same state cost the same on both backends (float32 against float64), and a
-    new belief (set_params) reaches the GPU's worlds: its costs change as the CPU's do."""
+    new belief (set_params) or a robot read mid-run (edit_models) reaches the GPU's worlds: its costs change
+    as the CPU's do."""
     cpu, state, cmd, ref = _planner_and_start("cpu")
     gpu_planner, *_ = _planner_and_start("cuda")
     assert gpu_planner.gpu is not None and gpu_planner.where() == "the GPU"
@@ -370,5 +372,19 @@ def test_gpu_planner_scores_as_the_cpu_planner_and_follows_the_belief():
         assert np.argmin(jg) == np.argmin(jc)
         costs.append(jg)
     assert np.max(np.abs(costs[1] - costs[0])) > 1e-3  # the heavier, stickier box's pushes cost otherwise
+    # a robot read mid-run (write_robot) reaches both backends alike: motors at a quarter of the model's limits
+    # (copied into the device model in place), then the servo at 0.6 of the gains too (per-world fields)
+    m, slots = cpu.scene.model, gpu_planner.gpu.timing["slots"]
+    kp, kd, limit = m.actuator_gainprm[:, 0].copy(), -m.actuator_biasprm[:, 2].copy(), m.actuator_forcerange[:, 1]
+    for side in (RobotSide(tuple(kp), tuple(kd), torque_limit=tuple(0.25 * limit)),
+                 RobotSide(tuple(0.6 * kp), tuple(0.6 * kd), torque_limit=tuple(0.25 * limit))):
+        for p in (cpu, gpu_planner):
+            p.edit_models(lambda mdl: write_robot(mdl, side))
+        jc = cpu._score(state, knots, ref, cmd)
+        jg = gpu_planner._score(state, knots, ref, cmd)
+        assert np.max(np.abs(jg - jc) / np.abs(jc)) < 1e-3
+        assert np.max(np.abs(jg - costs[-1]) / np.abs(costs[-1])) > 1e-3  # the edit changed what the GPU rolls out
+        costs.append(jg)
+    assert gpu_planner.gpu.timing["slots"] == slots  # edited in place: no device model was built again
     cpu.close()
     gpu_planner.close()

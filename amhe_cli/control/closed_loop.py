@@ -621,10 +621,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if new is None:
                 return
             side = mhe_side = new
-            on_gpu = not planner.edit_models(lambda mdl: write_robot(mdl, new))
+            planner.edit_models(lambda mdl: write_robot(mdl, new))
             who = "the planner and the MHE model" if estimator is not None else "the planner models"
-            warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on"
-                 + (" (the GPU planner keeps its own)" if on_gpu else ""))
+            warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on")
 
         m = plant.measure()
         while m.t < task.duration - 1e-9:
@@ -720,8 +719,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 for text in estimator.take_errors():
                     warn(text)
                 if mhe_side is not None and not estimator.busy:
-                    if not estimator.mhe.edit_models(lambda mdl: write_robot(mdl, mhe_side)):
-                        warn(f"t={now:.2f} s: the MHE on the GPU keeps the robot it started with")
+                    estimator.mhe.edit_models(lambda mdl: write_robot(mdl, mhe_side))
                     mhe_side = None
                 if now >= next_update - 1e-9:
                     # the wall clock defers an update while the last one runs or the thread rests (the planner's

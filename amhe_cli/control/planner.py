@@ -252,14 +252,13 @@ class Planner:
     def __exit__(self, *exc) -> None:
         self.close()
 
-    def edit_models(self, edit) -> bool:
-        """Apply ``edit(model)`` (in place) to every model the planner rolls out, from the next plan on: what is
-        not a belief parameter, such as a robot's servo read mid-run (:mod:`~amhe_cli.control.robot_side`).
-        Returns False where the samples roll out on the GPU (its worlds keep the model they were made with)."""
-        if self.gpu is not None:
-            return False
+    def edit_models(self, edit) -> None:
+        """Apply ``edit(model)`` (in place; it sets values) to every model the planner rolls out, from the next
+        plan on, on the CPU and on the GPU alike: what is not a belief parameter, such as a robot's servo and
+        motors read mid-run (:mod:`~amhe_cli.control.robot_side`)."""
         self.pool.edit_models(edit, base=self.space.scene.model)
-        return True
+        if self.gpu is not None:
+            self.gpu.edit_models(edit, base=self.space.scene.model)
 
     def set_params(self, values: np.ndarray) -> None:
         """Write a parameter vector (flat coordinates of ``space``) into every planner model copy."""

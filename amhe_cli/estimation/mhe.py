@@ -294,15 +294,11 @@ class MovingHorizonEstimator:
         self.steps = int(np.clip(steps, s.max_steps, FILL_MAX * s.max_steps))
         return self.steps
 
-    def edit_models(self, edit) -> bool:
-        """Apply ``edit(model)`` (in place) to the models the next updates roll out: what is not an estimated
-        parameter, such as a robot's servo read mid-run (:mod:`~amhe_cli.control.robot_side`). Call it between
-        updates. Returns False where the backend cannot (MuJoCo Warp's worlds keep the model they were made
-        with)."""
-        if not hasattr(self.pool, "edit_models"):
-            return False
+    def edit_models(self, edit) -> None:
+        """Apply ``edit(model)`` (in place; it sets values) to the models the next updates roll out, on either
+        backend: what is not an estimated parameter, such as a robot's servo read mid-run
+        (:mod:`~amhe_cli.control.robot_side`). Call it between updates."""
         self.pool.edit_models(edit, base=self.space.scene.model)
-        return True
 
     def close(self) -> None:
         if self._own_pool:

@@ -70,6 +70,11 @@ BATCHED_FIELDS = ParameterSpace.MODEL_FIELDS + DERIVED_FIELDS
 #: Fields mj_setConst may rewrite that a MuJoCo Warp step never reads (kept out of the per-world copy).
 HOST_ONLY_FIELDS = ("dof_M0", "body_gravcomp_invweight0")
 
+#: Unbatched fields that MuJoCo Warp's model lays out as ``MjModel`` does (``(*, n)`` or ``(n,)``, vec2 ranges
+#: as pairs), so an edit copies them into a slot's device model in place (:meth:`WarpRollout.edit_models`)
+IN_PLACE_FIELDS = ("actuator_forcerange", "actuator_forcelimited", "actuator_ctrlrange", "actuator_ctrllimited",
+                   "dof_damping", "dof_armature", "dof_frictionloss")
+
 #: Overflow bits (mujoco_warp OverflowType) that mean lost contacts or constraints: NEFC, NJMAX_NNZ,
 #: BROADPHASE, NARROWPHASE, CCD. The solver's iteration limit (also flagged) is not an overflow: MuJoCo
 #: on the CPU stops there too.
@@ -462,6 +467,51 @@ class WarpRollout:
         while len(self._models) < n:
             self._models.append(copy.copy(self.template))
         return self._models[:n]
+
+    def edit_models(self, edit, base: mujoco.MjModel | None = None) -> None:
+        """Apply ``edit(model)`` (in place) to the template, the host copies and ``base``, and carry what it
+        changed into every slot's worlds from the next call on: what is not a parameter the candidates write,
+        such as a robot's servo and motors read mid-run (:mod:`~amhe_cli.control.robot_side`), as
+        :meth:`RolloutPool.edit_models <amhe_cli.model.rollout.RolloutPool.edit_models>` does on the CPU.
+
+        A batched field (:data:`BATCHED_FIELDS`: the servo gains among them) is rewritten from ``base`` (the
+        space's scene model, which :meth:`ParameterSpace.model_fields
+        <amhe_cli.model.params.ParameterSpace.model_fields>` copies) at the next call, the slots' field cache
+        dropped; a changed field of :data:`IN_PLACE_FIELDS` (the motors' ``actuator_forcerange``) is copied
+        into each slot's device model in place, so its captured step stays valid. Any other changed field drops
+        every slot (the next call builds them again from the edited model: seconds, not minutes). ``edit`` sets
+        values (applying it twice is applying it once): a model the caller's CPU pool shares is edited by both.
+        """
+        for m in {id(m): m for m in (base, self.template, *self._models) if m is not None}.values():
+            edit(m)
+        new = warp_host_model(self.template)
+        changed = [f for f in _array_fields(new) if f not in BATCHED_FIELDS
+                   and not np.array_equal(getattr(new, f), getattr(self.host, f))]
+        self.host = new
+        for s in list(self._slots.values()):
+            s.fieldkey = None  # the batched fields come again from the edited base at the next call
+            if not all(self._copy_field(s, f) for f in changed):
+                self.close()
+                break
+
+    def _copy_field(self, s: _Slot, field: str) -> bool:
+        """Host ``field`` into slot ``s``'s device model in place (every world); False where it cannot be."""
+        wp = self.wp
+        arr = getattr(s.m, field, None)
+        if field not in IN_PLACE_FIELDS or not isinstance(arr, wp.array):
+            return False
+        shape = tuple(arr.shape) + tuple(getattr(arr.dtype, "_shape_", ()))  # a vec2 field: (..., 2) floats
+        value = np.asarray(getattr(self.host, field))
+        if value.size == int(np.prod(shape)):
+            value = value.reshape(shape)
+        elif arr.ndim > 1 and value.size * arr.shape[0] == int(np.prod(shape)):  # per world: every world alike
+            value = np.broadcast_to(value.reshape((1,) + shape[1:]), shape)
+        else:
+            return False
+        with self._scope():
+            src = wp.array(np.ascontiguousarray(value), dtype=arr.dtype, device=self.device)
+            wp.copy(arr, src)
+        return True
 
     # -- device set-up ---------------------------------------------------------
     def _slot(self, nworld: int) -> _Slot:
