@@ -299,6 +299,47 @@ def test_gpu_overflow_is_raised_or_grown(scene, clips, capsys):
 
 @pytest.mark.gpu
 @gpu
+def test_two_backends_in_two_threads_roll_out_as_each_does_alone(scene, clips):
+    """A run's GPU planner and its GPU MHE thread: one backend keeps capturing steps for new widths while the
+    other keeps launching its own; every batch of either comes back as it does alone, and nothing raises.
+    (Warp's current stream is per device, not per thread: before :data:`~amhe_cli.model.rollout_warp.ENQUEUE_LOCK`
+    an emulated Go1 run with both on one GPU stopped 9 s in with "operation not permitted when stream is
+    capturing".)"""
+    import threading
+    space = ParameterSpace(scene, ("box_mass", "box_friction"))
+    widths = (3, 9, 17, 33, 65)  # candidates: 24 .. 520 worlds, a new slot (and capture) each
+    P = space.project(space.vector(TRUTH) + np.random.default_rng(2).normal(0, 1, (max(widths), 2)) * [1.5, 0.1])[0]
+    args = (clips.initial_state, clips.control, clips.horizon)
+    with rw.WarpRollout(scene.model) as a, rw.WarpRollout(scene.model) as b:
+        alone_a = [a.rollout_candidates(space, P[:w], *args)[0] for w in widths]
+        alone_b = b.rollout_candidates(space, P[:4], *args)[0]
+        a.close()  # every width captured anew beside b
+        errors, got_b, stop = [], [], threading.Event()
+
+        def keep_launching():
+            try:
+                while not stop.is_set():
+                    got_b.append(b.rollout_candidates(space, P[:4], *args)[0])
+            except Exception as exc:  # noqa: BLE001 - asserted below
+                errors.append(exc)
+
+        t = threading.Thread(target=keep_launching)
+        t.start()
+        try:
+            got_a = [a.rollout_candidates(space, P[:w], *args)[0] for w in widths]
+        finally:
+            stop.set()
+            t.join()
+    assert not errors, errors
+    assert len(got_b) >= 2
+    box = scene.box_qpos[:2]
+    for x, y in [*zip(got_a, alone_a), *((x, alone_b) for x in got_b)]:
+        err = np.abs(x[..., box] - y[..., box])  # the device's atomics may order contacts otherwise: a rare flip
+        assert np.median(err) < 1e-6 and np.percentile(err, 99) < 1e-3
+
+
+@pytest.mark.gpu
+@gpu
 def test_the_kernel_message_is_said_once_per_process(scene, clips, capsys):
     """A command that makes two backends (the payload fit's, then identify's) says once that kernels
     compile or load, and how long it took."""

@@ -43,10 +43,12 @@ them in seconds. The first use says so on stderr, with the time it took.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import hashlib
 import os
 import sys
+import threading
 import time
 
 import mujoco
@@ -83,6 +85,14 @@ OVERFLOW_BITS = {1: "constraint rows (njmax)", 2: "constraint Jacobian non-zeros
 
 #: Slots (world capacities) kept at once; the least recently used is dropped beyond this.
 MAX_SLOTS = 8
+
+#: Held by every phase of a backend that enqueues device work (allocation, uploads, graph capture and launch,
+#: the read-back copies), never while it waits. Warp's current stream is one setting per device, not per
+#: thread: two backends in one process (a run's GPU planner and its GPU MHE thread), each in its own stream
+#: through ``ScopedStream``, switched it under each other, so one's kernels landed in the other's stream — in
+#: the middle of its graph capture ("Warp CUDA error 900: operation not permitted when stream is capturing",
+#: an emulated Go1 run stopped 9 s in; tests/test_gpu_backend.py) or past its wait.
+ENQUEUE_LOCK = threading.RLock()
 
 #: Whether this process has said that the kernels compile (or load) and how long it took: once, not once per
 #: backend (a command that fits the payload and then identifies makes two).
@@ -449,11 +459,15 @@ class WarpRollout:
 
     def close(self) -> None:
         """Drop the device buffers and graphs (a later call allocates them again)."""
-        self._slots.clear()
+        with ENQUEUE_LOCK:
+            self._slots.clear()
 
+    @contextlib.contextmanager
     def _scope(self):
-        """Work in this backend's stream (on CUDA) or on its device."""
-        return self.wp.ScopedStream(self.stream) if self.stream is not None else self.wp.ScopedDevice(self.device)
+        """Enqueue work in this backend's stream (on CUDA) or on its device, holding :data:`ENQUEUE_LOCK`."""
+        with ENQUEUE_LOCK, (self.wp.ScopedStream(self.stream) if self.stream is not None
+                            else self.wp.ScopedDevice(self.device)):
+            yield
 
     def _sync(self) -> None:
         """Wait for this backend's own work (its stream; the whole device off CUDA)."""
@@ -550,6 +564,8 @@ class WarpRollout:
                     s.flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
                 s.nclip = wp.zeros(1, dtype=int)
                 s.step = wp.zeros(1, dtype=int)
+            # the overflow flags' page-locked host twin (read back with the states, in this backend's stream)
+            s.flags_host = wp.empty(cap, dtype=s.d.overflow.dtype, device="cpu", pinned=self.device.is_cuda)
         except (NotImplementedError, ValueError) as e:
             raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
                             "(use --device cpu)") from None
@@ -663,18 +679,23 @@ class WarpRollout:
                 else:
                     self._step(s)
 
-    def _readback(self, s: _Slot, nworld: int, hmax: int) -> tuple[np.ndarray, np.ndarray]:
-        """qpos (nworld, hmax, nq) and qvel (nworld, hmax, nv) of the last launch, as new host arrays.
+    def _readback(self, s: _Slot, nworld: int, hmax: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """qpos (nworld, hmax, nq), qvel (nworld, hmax, nv) and the overflow flags (nworld,) of the last launch,
+        as new host arrays.
 
-        Only the first ``nworld`` worlds' rows are copied (into the pinned twins), then out of them into
-        arrays the caller owns: the twins are reused by the next call.
+        Only the first ``nworld`` worlds' rows are copied (into the pinned twins, enqueued in this backend's
+        stream; the wait holds no lock), then out of them into arrays the caller owns: the twins are reused
+        by the next call.
         """
         wp, m = self.wp, self.host
         rows = nworld * s.hcap
-        wp.copy(s.qpos_host, s.qpos_out, count=rows * m.nq)
-        wp.copy(s.qvel_host, s.qvel_out, count=rows * m.nv)
+        with self._scope():
+            wp.copy(s.qpos_host, s.qpos_out, count=rows * m.nq)
+            wp.copy(s.qvel_host, s.qvel_out, count=rows * m.nv)
+            wp.copy(s.flags_host, s.d.overflow, count=nworld)
         self._sync()
-        return (np.array(s.qpos_host.numpy()[:nworld, :hmax]), np.array(s.qvel_host.numpy()[:nworld, :hmax]))
+        return (np.array(s.qpos_host.numpy()[:nworld, :hmax]), np.array(s.qvel_host.numpy()[:nworld, :hmax]),
+                np.array(s.flags_host.numpy()[:nworld]))
 
     def _set_fields(self, s: _Slot, fields: dict[str, np.ndarray], ncand: int) -> None:
         """Per-candidate (B, ...) fields to every world (world w: candidate w // N_c; padding: candidate 0)."""
@@ -708,8 +729,7 @@ class WarpRollout:
                 worlds that overflow the scene's bound come back as NaN (the
                 cost module's "diverged") with a warning.
         """
-        with self._scope():  # every copy and launch in this backend's stream
-            return self._rollout_candidates(space, P, initial_state, control, horizon)
+        return self._rollout_candidates(space, P, initial_state, control, horizon)
 
     def _rollout_candidates(self, space, P, initial_state, control, horizon):
         P = np.atleast_2d(P)
@@ -721,10 +741,11 @@ class WarpRollout:
         if not self.njmax:
             self.nconmax, self.njmax = choose_sizes(self.bound, measured_sizes(self.template, initial_state,
                                                                                control, horizon))
-        s = self._slot(nworld)
-        self._buffers(s, n, hmax)
-        self._upload_clips(s, initial_state, control)
-        self._graph(s)
+        with self._scope():  # the slot, its clip buffers and inputs, its captured step
+            s = self._slot(nworld)
+            self._buffers(s, n, hmax)
+            self._upload_clips(s, initial_state, control)
+            self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
         # the same candidates of the same space on the same clip count as this slot's last call (the
@@ -734,16 +755,16 @@ class WarpRollout:
         same = s.fieldkey is not None and s.fieldkey[0] is space and s.fieldkey[1] == fkey
         fields = None if same else candidate_fields(space, P, self.models(B), self._raise)
         t1 = time.perf_counter()
-        if fields is not None:
-            self._set_fields(s, fields, B)
-            s.fieldkey = (space, fkey)
-        t2 = time.perf_counter()
-        self._launch(s, hmax)
+        with self._scope():  # enqueued under the lock; the wait below holds none
+            if fields is not None:
+                self._set_fields(s, fields, B)
+                s.fieldkey = (space, fkey)
+            t2 = time.perf_counter()
+            self._launch(s, hmax)
         self._sync()
         t3 = time.perf_counter()
-        qpos, qvel = self._readback(s, nworld, hmax)
+        qpos, qvel, flags = self._readback(s, nworld, hmax)
         qpos, qvel = qpos.reshape(B, n, hmax, m.nq), qvel.reshape(B, n, hmax, m.nv)
-        flags = s.d.overflow.numpy()[:nworld]
         tm["fields"] += t1 - t0
         tm["upload"] += t2 - t1
         tm["steps"] += t3 - t2
