@@ -27,10 +27,7 @@ says in how many draws the changed parameter won.
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import warnings
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
 import numpy as np
@@ -98,25 +95,9 @@ def main() -> None:
     ap.add_argument("--window", type=float, default=3.0, help="window length [s]")
     ap.add_argument("--clips", type=int, default=None, help="clips per draw (default: identify's for the log)")
     ap.add_argument("--draws", type=int, default=4, help="draws of clips per log")
-    ap.add_argument("--jobs", type=int, default=os.cpu_count())
-    ap.add_argument("--out", default=None, help="JSON-lines file each row is appended to as it finishes")
-    ap.add_argument("--table", default=None, help="only print the table of an existing --out file")
-    a = ap.parse_args()
-    if a.table:
-        table([json.loads(line) for line in open(a.table)])
-        return
-    jobs = [(log, d, a.delay, a.window, a.clips) for log in a.logs for d in range(a.draws)]
-    rows = []
-    with ProcessPoolExecutor(a.jobs) as ex:
-        for fut in as_completed([ex.submit(one, job) for job in jobs]):
-            r = fut.result()
-            rows.append(r)
-            print(json.dumps(r), flush=True)
-            if a.out:
-                with open(a.out, "a") as f:
-                    f.write(json.dumps(r) + "\n")
-    table(rows)
-
+    from window_information import rows_main  # beside this script
+    rows_main(ap, lambda a: [(log, d, a.delay, a.window, a.clips) for log in a.logs for d in range(a.draws)],
+              one, table)
 
 if __name__ == "__main__":
     main()

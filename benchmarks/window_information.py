@@ -91,25 +91,37 @@ def main() -> None:
     ap.add_argument("logs", nargs="*")
     ap.add_argument("--window", type=float, default=3.0, help="window length [s]")
     ap.add_argument("--seeds", type=int, default=4)
+    rows_main(ap, lambda a: [(log, w, seed) for log in a.logs for w in windows(log, a.window)
+                             for seed in range(a.seeds)], one, table)
+
+
+def rows_main(ap: argparse.ArgumentParser, make_jobs, fn, table_fn) -> None:
+    """The rest of a row-writing benchmark's command line: ``--jobs``, ``--out`` and ``--table`` added to ``ap``;
+    then either the table of an existing ``--out`` file, or ``fn(job)`` for every job of ``make_jobs(args)``
+    (:func:`run_rows`) and their table."""
     ap.add_argument("--jobs", type=int, default=os.cpu_count())
     ap.add_argument("--out", default=None, help="JSON-lines file each row is appended to as it finishes")
     ap.add_argument("--table", default=None, help="only print the table of an existing --out file")
     a = ap.parse_args()
     if a.table:
-        table([json.loads(line) for line in open(a.table)])
+        table_fn([json.loads(line) for line in open(a.table)])
         return
-    jobs = [(log, w, seed) for log in a.logs for w in windows(log, a.window) for seed in range(a.seeds)]
+    table_fn(run_rows(fn, make_jobs(a), a.jobs, a.out))
+
+
+def run_rows(fn, jobs: list, n_jobs: int, out: str | None) -> list[dict]:
+    """``fn(job)`` for every job in ``n_jobs`` processes; each row printed as a JSON line and appended to ``out``
+    as it finishes (a run cut off keeps what finished). Returns the rows in finishing order."""
     rows = []
-    with ProcessPoolExecutor(a.jobs) as ex:
-        futures = [ex.submit(one, job) for job in jobs]
-        for fut in as_completed(futures):
+    with ProcessPoolExecutor(n_jobs) as ex:
+        for fut in as_completed([ex.submit(fn, job) for job in jobs]):
             r = fut.result()
             rows.append(r)
             print(json.dumps(r), flush=True)
-            if a.out:
-                with open(a.out, "a") as f:
+            if out:
+                with open(out, "a") as f:
                     f.write(json.dumps(r) + "\n")
-    table(rows)
+    return rows
 
 
 if __name__ == "__main__":
