@@ -230,10 +230,11 @@ def _robot_check(result, settings, scene) -> str | None:
     where the robot was not that one. The run is over and the robot damped: a check that fails says so, it never
     raises."""
     from amhe_cli.control.robot_side import check_run
+    from amhe_cli.model.scene import torque_limit
     if result.side is None:  # the run stopped before it planned
         return None
     try:
-        return check_run(result.traj, result.side, settings.kp, scene.model.actuator_forcerange[:, 1])
+        return check_run(result.traj, result.side, settings.kp, torque_limit(scene.model))
     except Exception as e:  # noqa: BLE001 - advice after the run, never a new failure
         return f"could not check the robot against the planner's model ({type(e).__name__}: {e})"
 

@@ -64,7 +64,7 @@ from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery
 from amhe_cli.control.robot_side import (READ_EVERY, READ_FROM, READ_SAMPLES, READ_WINDOW, RobotSide, follow,
                                          read_robot, robot_side, write_robot)
 from amhe_cli.model.rollout import default_threads
-from amhe_cli.model.scene import Scene, SceneConfig
+from amhe_cli.model.scene import Scene, SceneConfig, torque_limit
 from amhe_cli.control.tasks import Task
 from amhe_cli.io.smoothing import preload as preload_smoothing
 from amhe_cli.io.trajectory import Trajectory
@@ -554,7 +554,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 note(describe_split(s, clocked))
         read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
         if read_on:
-            model_limit = plant.scene.model.actuator_forcerange[:, 1].copy()  # the model's own, whatever it plans
+            model_limit = torque_limit(plant.scene.model)  # the model's own, whatever the planner models
             # on the wall clock a read (the joints' last seconds and a least-squares fit: 0.1 s on an idle core,
             # up to 0.8 s beside a loaded planner on 2 cores) runs in a thread; in lock-step at its time, so a
             # run repeats

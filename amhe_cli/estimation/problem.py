@@ -22,7 +22,7 @@ from amhe_cli.estimation.timing import APPLY_ABOVE, mocap_offset
 from amhe_cli.errors import AmheError
 from amhe_cli.io.reader import read_log
 from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
-from amhe_cli.model.scene import Scene, SceneConfig, infer_scene_config
+from amhe_cli.model.scene import Scene, SceneConfig, infer_scene_config, torque_limit
 from amhe_cli.io.trajectory import Trajectory
 
 
@@ -159,7 +159,7 @@ def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
         warnings.warn(f"the joint commands act {fit.delay * 1e3:.0f} ms after their stamps (the joint efforts say "
                       "so): shifted them that much later", stacklevel=3)
     kp, kd, warns = applied_gains(traj, fit)
-    limit, limit_warns = applied_limit(fit, Scene(config).model.actuator_forcerange[:, 1].copy())
+    limit, limit_warns = applied_limit(fit, torque_limit(Scene(config).model))
     for text in warns + limit_warns:
         warnings.warn(text, stacklevel=3)
     traj.meta.setdefault("sensors", {})["gains"] = {

@@ -25,6 +25,13 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def edit_each(edit, *models) -> None:
+    """``edit(model)`` once on each distinct model of ``models`` (None skipped): a rollout backend's template,
+    its copies, and the model its parameter space writes from, which may be one and the same."""
+    for m in {id(m): m for m in models if m is not None}.values():
+        edit(m)
+
+
 class RolloutPool:
     """Batched open-loop rollouts of one model template under many parameter sets.
 
@@ -67,8 +74,7 @@ class RolloutPool:
         :mod:`~amhe_cli.control.robot_side`). ``base``: the model a
         :class:`~amhe_cli.model.params.ParameterSpace` rewrites its fields from at every write (its scene's),
         edited too where it is not the template."""
-        for m in {id(m): m for m in (base, self.template, *self._models) if m is not None}.values():
-            edit(m)
+        edit_each(edit, base, self.template, *self._models)
 
     def describe(self) -> str:
         """One line for the device announcement."""

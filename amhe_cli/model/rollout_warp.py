@@ -56,6 +56,7 @@ import numpy as np
 
 from amhe_cli.errors import AmheError
 from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.rollout import edit_each
 
 #: MuJoCo's smallest friction coefficient (mjMINMU).
 MJ_MINMU = 1e-5
@@ -496,8 +497,7 @@ class WarpRollout:
         every slot (the next call builds them again from the edited model: seconds, not minutes). ``edit`` sets
         values (applying it twice is applying it once): a model the caller's CPU pool shares is edited by both.
         """
-        for m in {id(m): m for m in (base, self.template, *self._models) if m is not None}.values():
-            edit(m)
+        edit_each(edit, base, self.template, *self._models)
         new = warp_host_model(self.template)
         changed = [f for f in _array_fields(new) if f not in BATCHED_FIELDS
                    and not np.array_equal(getattr(new, f), getattr(self.host, f))]
@@ -516,12 +516,9 @@ class WarpRollout:
             return False
         shape = tuple(arr.shape) + tuple(getattr(arr.dtype, "_shape_", ()))  # a vec2 field: (..., 2) floats
         value = np.asarray(getattr(self.host, field))
-        if value.size == int(np.prod(shape)):
-            value = value.reshape(shape)
-        elif arr.ndim > 1 and value.size * arr.shape[0] == int(np.prod(shape)):  # per world: every world alike
-            value = np.broadcast_to(value.reshape((1,) + shape[1:]), shape)
-        else:
+        if value.size != int(np.prod(shape)):  # an unbatched field: one world's worth, (1, n) or (n,)
             return False
+        value = value.reshape(shape)
         with self._scope():
             src = wp.array(np.ascontiguousarray(value), dtype=arr.dtype, device=self.device)
             wp.copy(arr, src)

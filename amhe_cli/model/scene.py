@@ -317,6 +317,11 @@ def set_pd_gains(model: mujoco.MjModel, kp, kd) -> None:
     model.actuator_biasprm[:, 2] = -kd
 
 
+def torque_limit(model: mujoco.MjModel) -> np.ndarray:
+    """(nu,) the motors' torque limits [N·m] of ``model``'s position servos (the upper end of each force range), a copy."""
+    return model.actuator_forcerange[:, 1].copy()
+
+
 def set_torque_limit(model: mujoco.MjModel, limit) -> None:
     """Write the motors' torque limits [N·m] (scalar or (nu,), positive) into the position servos' force range
     of ``model`` (in place).

@@ -56,7 +56,7 @@ import mujoco
 import numpy as np
 
 from amhe_cli.errors import AmheError
-from amhe_cli.model.scene import FEET
+from amhe_cli.model.scene import FEET, torque_limit
 from amhe_cli.plants.go1.mocap import PoseSender
 from amhe_cli.plants.go1.relay import raise_thread_priority
 from amhe_cli.plants.go1.protocol import MODE_SERVO, POS_STOP_F, VEL_STOP_F, LowCmd, LowState, ProtocolError
@@ -253,7 +253,7 @@ class Go1Emulator:
         s = plant.scene
         self._jq, self._jv = s.joint_qpos, s.joint_qvel
         self._bq, self._bv, self._xq = s.base_qpos, s.base_qvel, s.box_qpos
-        self.limit = plant.model.actuator_forcerange[:, 1].copy()
+        self.limit = torque_limit(plant.model)
         self.model = self._torque_model()
         m = self.model
         self._imu = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "imu")
