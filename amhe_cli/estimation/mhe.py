@@ -27,13 +27,16 @@ from the estimator thread with the live buffer.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.clips import rest_travel, window_clips
+from amhe_cli.estimation.attribution import CLIPS as ATTRIBUTION_CLIPS, LOOKBACK, NAMES as SPLIT_NAMES, SplitTracker
+from amhe_cli.estimation.clips import rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
+from amhe_cli.estimation.identify import clip_plan
 from amhe_cli.errors import AmheError
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.device import make_backend
@@ -116,6 +119,10 @@ class MHESettings:
             budget then follows the measured speed update by update (:meth:`MovingHorizonEstimator.budget`),
             from ``max_steps`` up to :data:`FILL_MAX` times it: more of each window rolled out where the
             core has time to spare. None (default): ``max_steps`` fixed, as offline.
+        attribute: report the box's mass and friction from line decisions over seconds of data, which tell
+            which of the two changed (:mod:`~amhe_cli.estimation.attribution`), instead of each window's
+            own split, which motion-capture noise blurs; the windows then detect changes. Needs both free
+            and a prior that holds the split (a belief). Off by default.
         seed: sampling seed.
         device: rollout backend, ``cpu``, ``cuda`` or ``auto``
             (:func:`~amhe_cli.model.device.choose_device`); None (default): the
@@ -136,6 +143,7 @@ class MHESettings:
     min_speed: float = 0.02
     fuse: bool = False
     fill: float | None = None
+    attribute: bool = False
     seed: int = 0
     device: str | None = None
 
@@ -244,6 +252,8 @@ class MovingHorizonEstimator:
         std: (d,) its σ after the last update.
         window_mean: (d,) the last window's own estimate, the ``p̂⁻`` of the next window.
         fusion: the :class:`~amhe_cli.estimation.fusion.WindowFusion`, or None.
+        tracker: the :class:`~amhe_cli.estimation.attribution.SplitTracker` (``settings.attribute``), or None;
+            its ``decisions`` list the line decisions so far.
         duty: share of a core the estimator is given (1: a core of its own; ``run`` sets it from
             ``mhe_cores``): with ``settings.fill`` an update aims at ``fill · every · duty`` seconds.
         steps: step budget per candidate of the next update (:meth:`budget`).
@@ -267,6 +277,14 @@ class MovingHorizonEstimator:
         self.window_mean = self.mean.copy()
         self.fusion = (WindowFusion(self.mean, space.std0, self.std, space.scale, self.settings.sigma_floor,
                                     self.settings.window) if self.settings.fuse else None)
+        self.tracker = None
+        if self.settings.attribute:
+            sl = space.slices()
+            missing = [n for n in SPLIT_NAMES if n not in sl]
+            if missing:
+                raise AmheError(f"mhe attribute needs {' and '.join(SPLIT_NAMES)} free; {', '.join(missing)} is not")
+            self.tracker = SplitTracker((sl["box_mass"].start, sl["box_friction"].start), self.mean, space.std0,
+                                        self.std, self.settings.sigma_floor, self.settings.window)
         pull = np.empty(space.dim)
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
@@ -294,6 +312,12 @@ class MovingHorizonEstimator:
         self.steps = int(np.clip(steps, s.max_steps, FILL_MAX * s.max_steps))
         return self.steps
 
+    @property
+    def lookback(self) -> float:
+        """Seconds of data before ``t`` an :meth:`update` reads: the window, or with ``settings.attribute``
+        the span its line decisions score (:data:`~amhe_cli.estimation.attribution.LOOKBACK`)."""
+        return max(self.settings.window, LOOKBACK if self.tracker is not None else 0.0)
+
     def edit_models(self, edit) -> None:
         """Apply ``edit(model)`` (in place; it sets values) to the models the next updates roll out, on either
         backend: what is not an estimated parameter, such as a robot's servo read mid-run
@@ -318,6 +342,34 @@ class MovingHorizonEstimator:
         clip_steps = None if clip is None else int(round(clip / traj.dt))
         return window_clips(traj, self.scene, start, stop, clip_steps, self.steps, s.min_speed,
                             rest_travel(traj))
+
+    def _split(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray) -> None:
+        """Replace the reported mass and friction with the tracker's (``settings.attribute``), making a due
+        line decision over clips drawn as ``identify`` draws them (:mod:`~amhe_cli.estimation.attribution`)."""
+        tr = self.tracker
+        tr.fuse(t, mu)
+        due = tr.due()
+        if due is not None:
+            since, reason = due
+            _, horizon, _ = clip_plan(traj)  # of identify's length: what change_attribution measured
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
+                    clips = sample_clips(traj, self.scene, ATTRIBUTION_CLIPS, horizon, self.rng, (since, float(traj.t[stop - 1])),
+                                         self.settings.min_speed, rest_travel(traj))
+            except AmheError:
+                clips = None  # not yet a clip's worth of data: the next update tries again
+            if clips is not None:
+                self._cost.set_clips(clips)
+                # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
+                # decision's end stays: its data may straddle a change the windows have not confirmed)
+                for retry in ((True, False) if reason != "period" else (False,)):
+                    P = tr.candidates(self.mean)
+                    if tr.decide(t, reason, P, self._cost.evaluate(P).data, retry) is not None:
+                        break
+        self.mean, self.std = self.mean.copy(), self.std.copy()
+        self.mean[tr.im], self.mean[tr.iu] = tr.ref
+        self.std[tr.im], self.std[tr.iu] = tr.std()
 
     def update(self, traj: Trajectory, t: float) -> Update:
         """Re-estimate from the window of ``traj`` that ends at time ``t`` [s] (eq. 4, Algorithm 1).
@@ -359,6 +411,9 @@ class MovingHorizonEstimator:
         j = float(np.min(J))
         if self.fusion is not None:
             self.mean, self.std = self.fusion.update(t, mu), self.fusion.std
+        if self.tracker is not None:
+            self._split(traj, stop, t, mu)
+            self.std = np.maximum(self.std, floor)
         elapsed = time.perf_counter() - t0
         self.budget(elapsed, it * int(np.sum(clips.horizon)))
         return Update(t, self.mean.copy(), self.std.copy(), j, it, elapsed, False, mu.copy(), steps)

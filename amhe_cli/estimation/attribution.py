@@ -1,0 +1,278 @@
+"""Change attribution: the box's mass and friction held apart through noisy motion capture
+(``MHESettings.attribute``; issue #24).
+
+Through motion capture with millimetre noise a 1 s MHE window pins the friction force a push shows,
+``m·μ`` (times g), but not its split into mass and friction: the split shows only where the box
+accelerates, and the noise blurs it (*measured*: ``benchmarks/window_information.py``, docs/reference.md).
+Worse, successive windows chain their estimates (``p̂⁻``), so a window's product can sit 20–30 % off for
+seconds. What the data *can* tell, over a couple of seconds, is which of the two moved: scored along two
+lines, one moving the mass with the friction held at its value before, one moving the friction with the
+mass held, the changed parameter's line had the lower cost in 16 of 16 draws on noisy T3/T4 recordings
+(``benchmarks/change_attribution.py``). This module makes that an estimator beside the windows:
+
+* **the reference** ``(m_ref, μ_ref)`` is what is reported. It starts at the prior (a belief from
+  ``probe``/``identify``, whose manoeuvre excites what the windows cannot) and moves only by a *line
+  decision*, over :data:`SPAN` seconds of informative data with clips drawn as ``identify`` draws them:
+  :data:`FACTORS` × the reference's value on each of the two lines are scored (the shared cost, data term
+  only), each line's minimum refined by a parabola through its best point and neighbours;
+
+  - where one line's cost is lower by :data:`DECISIVE_GAP` of the higher, that parameter moved: it takes
+    its line's minimum, the other is held (an *attribution*);
+  - else the friction force is updated without a split: along the last attributed parameter's line, or
+    before any attribution along the prior's own metric (``ln m`` and ``ln μ`` move in the ratio of the
+    prior's relative variances: the split nearest the prior with that product);
+  - a periodic decision that is not a change of the other parameter is averaged into the reference (its
+    ``ln m·μ``, the last :data:`AVERAGE` at most), as one span's line minimum scatters by ~10 %; a detected
+    change, or a decisive change of the other parameter, restarts from its decision;
+
+* **the windows** still solve eq. (4), but their product ``m·μ`` only *detects* a change early (a
+  one-coordinate :class:`~amhe_cli.estimation.fusion.WindowFusion`: gate confirmed by a window sharing no
+  data, or CUSUM): a change is decided provisionally on the data since it first showed, as soon as it is
+  confirmed, with the lines held at the reference before it, and finally once :data:`SPAN` seconds of data
+  after it are in; with no change detected the lines are scored every :data:`PERIOD` seconds of data.
+
+A change of both at once is attributed to the one whose line explains it better. The reference cannot
+learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
+from a belief (``run``'s Adaptive mode), not for a log with a nominal prior.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.fusion import WindowFusion
+
+#: Seconds of informative data (windows where the box moved) a line decision scores.
+SPAN = 2.0
+#: Seconds of data before an update the estimator needs with ``attribute`` (the span, and rests between).
+LOOKBACK = 4 * SPAN
+#: Multiples of the reference's value scored on each line: evenly in log from half to twice it (a
+#: friction that doubles, as T4's 0.4 -> 0.8, is still inside).
+FACTORS = np.exp(np.linspace(np.log(0.5), np.log(2.0), 9))
+#: Clips a line decision draws, as ``identify`` draws them for the log's noise (its 32, of 0.1–0.2 s on a
+#: noisy log). Half as many, on a replay of the live clock, lost the mass switch more often.
+CLIPS = 32
+#: Seconds of informative data between line decisions where no change is detected.
+PERIOD = SPAN
+#: Periodic decisions averaged (in log product) since the last change, at most: noise of one is ~10 %.
+AVERAGE = 4
+#: Cost gap, as a share of the higher line's lowest cost, that decides which parameter moved.
+DECISIVE_GAP = 0.15
+#: Names of the two parameters whose split is attributed.
+NAMES = ("box_mass", "box_friction")
+
+
+@dataclass
+class Decision:
+    """One line decision.
+
+    Attributes:
+        t: time [s] of the update that made it.
+        since: start [s] of the data it scored.
+        reason: ``change`` (the windows detected one; the final decision), ``provisional`` (the same, as
+            soon as it was confirmed) or ``period`` (:data:`PERIOD` seconds without a detected change).
+        changed: ``box_mass`` or ``box_friction`` where the gap was decisive, else None (product only).
+        mass, friction: the new reference [kg], [-].
+        cost: the two lines' lowest costs, name -> J (data term only).
+    """
+
+    t: float
+    since: float
+    reason: str
+    changed: str | None
+    mass: float
+    friction: float
+    cost: dict
+
+    def describe(self) -> str:
+        """One line for a log: what the decision found."""
+        if self.changed is None:
+            return (f"t={self.t:.2f} s: MHE line decision ({self.reason}, data from {self.since:.1f} s): which "
+                    f"parameter moved is undecided; friction force m·μ {self.mass * self.friction:.2f} kg")
+        new = f"{self.mass:.2f} kg" if self.changed == "box_mass" else f"{self.friction:.3f}"
+        held = (f"friction held at {self.friction:.3f}" if self.changed == "box_mass"
+                else f"mass held at {self.mass:.2f} kg")
+        return (f"t={self.t:.2f} s: MHE attributes the change ({self.reason}, data from {self.since:.1f} s) to "
+                f"{self.changed}: {new}; {held}")
+
+
+def line_minimum(factors: np.ndarray, J: np.ndarray) -> tuple[float, float]:
+    """(factor, cost) of a line's minimum: the best point refined by the parabola through it and its two
+    neighbours (in log factor), kept inside them; the best point itself at an end of the line."""
+    k = int(np.argmin(J))
+    if k in (0, len(J) - 1) or not np.all(np.isfinite(J[k - 1:k + 2])):
+        return float(factors[k]), float(J[k])
+    x = np.log(factors[k - 1:k + 2])
+    a, b, c = np.polyfit(x, J[k - 1:k + 2], 2)
+    if not a > 0:
+        return float(factors[k]), float(J[k])
+    xm = float(np.clip(-b / (2 * a), x[0], x[2]))
+    return float(np.exp(xm)), float(min(J[k], np.polyval([a, b, c], xm)))
+
+
+class SplitTracker:
+    """The reported mass and friction: a reference moved by line decisions, changes detected by the
+    windows' product (module doc).
+
+    Args:
+        index: flat indices ``(i_m, i_μ)`` of the box's mass and friction in the estimator's vector.
+        mean0: (d,) the prior mean; ``std0``: (d,) its σ (the reference to start from, and its metric).
+        noise0: (d,) σ of one window's estimate assumed before the fusion can read it.
+        floor: σ floor of the product's window noise, as a share of the prior product.
+        window: ``H`` [s] of the windows.
+
+    Attributes:
+        ref: (mass [kg], friction) reported.
+        active: the parameter last attributed a change (None before any).
+        pending: ``(since, split before)`` of a detected change not yet finally decided, or None.
+        decisions: the :class:`Decision` list so far.
+
+    Raises:
+        AmheError: a non-positive prior mass or friction (the metric is taken in logs).
+    """
+
+    def __init__(self, index: tuple[int, int], mean0: np.ndarray, std0: np.ndarray, noise0: np.ndarray,
+                 floor: float, window: float):
+        self.im, self.iu = index
+        m, mu = float(mean0[self.im]), float(mean0[self.iu])
+        if not (m > 0 and mu > 0):
+            raise AmheError(f"change attribution needs a positive prior mass and friction, got {m} kg and {mu}")
+        rel = lambda v: (float(v[self.im]) / m, float(v[self.iu]) / mu)  # noqa: E731
+        rm, ru = rel(std0)
+        self.share = rm ** 2 / (rm ** 2 + ru ** 2)
+        self.rel_std = (rm, ru)
+        self.ref = (m, mu)
+        self.active: str | None = None
+        f0 = m * mu
+        self.product = WindowFusion(np.array([f0]), np.array([f0 * np.hypot(rm, ru)]),
+                                    np.array([f0 * np.hypot(*rel(noise0))]), np.array([f0]), floor, window)
+        self.window = float(window)
+        self.pending: tuple[float, tuple[float, float]] | None = None
+        self.tried = False  # the pending change's provisional decision has been made
+        self.since: float | None = None  # start [s] of the data the next periodic decision scores
+        self.seen = 0.0  # seconds of informative windows since then (or since the pending change showed)
+        self.last: float | None = None  # end [s] of the last informative window
+        self.decisions: list[Decision] = []
+        self.center: float | None = None  # product [kg] the next lines are centred on, after an edge
+        self.averaged = 1  # readings averaged into the reference since the last change (the prior: one)
+
+    def fuse(self, t: float, window_mean: np.ndarray) -> None:
+        """Take the informative window (d,) ending at ``t`` [s]: its product feeds the change detection. A
+        detected change with none pending opens one, from the end of the first window that showed it."""
+        held = self.product.held[0]
+        first = held[0][0] if held else float(t)
+        restarts = self.product.restarts
+        self.product.update(t, np.array([float(window_mean[self.im] * window_mean[self.iu])]))
+        if self.since is None:
+            self.since = float(t) - self.window
+        # new data this window brought: since the last informative one, at most a window's length
+        self.seen += self.window if self.last is None else min(t - self.last, self.window)
+        self.last = float(t)
+        if self.product.restarts > restarts and self.pending is None:
+            self.pending, self.tried = (first, self.ref), False
+            self.seen = min(t - first, self.window)
+
+    def due(self) -> tuple[float, str] | None:
+        """``(since, reason)`` of the line decision due now (:class:`Decision`), else None."""
+        if self.pending is not None:
+            if self.seen >= SPAN - 1e-9:
+                return self.pending[0], "change"
+            return None if self.tried else (self.pending[0], "provisional")
+        if self.since is not None and self.seen >= PERIOD - 1e-9:
+            return self.since, "period"
+        return None
+
+    def candidates(self, base: np.ndarray) -> np.ndarray:
+        """(2·len(FACTORS), d) candidates: ``base`` with the mass line's points, then the friction line's.
+
+        Each line holds the other parameter at the split before the pending change (or the reference)
+        and is centred where it meets the friction force the windows now show (:attr:`center`, the
+        product's fusion: right after a change, the window that confirmed it)."""
+        m, mu = self.pending[1] if self.pending is not None else self.ref
+        f = self.center if self.center is not None else float(self.product.x[0])
+        P = np.repeat(np.asarray(base, dtype=float)[None], 2 * FACTORS.size, axis=0)
+        n = FACTORS.size
+        P[:n, self.im], P[:n, self.iu] = f / mu * FACTORS, mu
+        P[n:, self.im], P[n:, self.iu] = m, f / m * FACTORS
+        return P
+
+    def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True) -> Decision | None:
+        """Move the reference by the costs ``J`` (2·len(FACTORS),) of :meth:`candidates` ``P`` (module doc).
+
+        Where the better line's minimum lies at its end and ``retry`` is set, nothing is decided: the lines
+        are re-centred there (:attr:`center`) for the caller to score once more, and None is returned; at
+        its end without ``retry``, the reference stays (a decision with ``changed`` None)."""
+        n = FACTORS.size
+        J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
+        k = int(np.argmin(J))
+        if retry and k % n in (0, n - 1):
+            self.center = float(P[k, self.im] * P[k, self.iu])
+            return None
+        self.center = None
+        (gm, jm), (gu, ju) = line_minimum(FACTORS, J[:n]), line_minimum(FACTORS, J[n:])
+        m0, mu0 = self.pending[1] if self.pending is not None else self.ref
+        f_c = float(P[0, self.im] * P[0, self.iu]) / FACTORS[0]  # the product the lines are centred on
+        fm, fu = gm * f_c / (m0 * mu0), gu * f_c / (m0 * mu0)  # as factors of the split held
+        since = self.pending[0] if self.pending is not None else self.since
+        changed = None
+        if not FACTORS[0] < (gu if ju < jm else gm) < FACTORS[-1]:
+            # the better line's minimum at its end, re-centred or not: the data do not place it (a span that
+            # straddles a change, a push too slow to tell): nothing moves
+            d = Decision(t, since, reason, None, *self.ref, {"box_mass": float(jm), "box_friction": float(ju)})
+            self.decisions.append(d)
+            self._settle(reason)
+            return d
+        if abs(jm - ju) >= DECISIVE_GAP * max(jm, ju):
+            changed = "box_mass" if jm < ju else "box_friction"
+        if reason == "period" and changed in (None, self.active):
+            # no change: one more reading of the friction force, averaged along the usual line
+            f = m0 * mu0 * (fm if jm <= ju else fu)
+            self.averaged = min(self.averaged + 1, AVERAGE)
+            f = m0 * mu0 * float(np.exp(np.log(f / (m0 * mu0)) / self.averaged))
+            self.ref = self.split(f, (m0, mu0))
+            changed = None
+        elif changed is not None:
+            self.ref = (m0 * fm, mu0) if changed == "box_mass" else (m0, mu0 * fu)
+            self.active, self.averaged = changed, 1
+        else:
+            # which moved is undecided; the friction force is not: the better line's, split as before
+            self.ref = self.split(m0 * mu0 * (fm if jm <= ju else fu), (m0, mu0))
+            self.averaged = 1
+        d = Decision(t, since, reason, changed, *self.ref, {"box_mass": float(jm), "box_friction": float(ju)})
+        self.decisions.append(d)
+        self._settle(reason)
+        return d
+
+    def _settle(self, reason: str) -> None:
+        """After a decision: the pending change stays for its final one, or the next span starts; the
+        product's fusion restarts at the reference."""
+        if reason == "provisional":
+            self.tried = True
+        else:
+            self.pending, self.since, self.seen = None, self.last, 0.0
+        fu_ = self.product
+        fu_.x[0], fu_.P[0] = self.ref[0] * self.ref[1], float(fu_.noise()[0])
+        fu_.held[0], fu_.cusum_hi[0], fu_.cusum_lo[0] = [], 0.0, 0.0
+
+    def split(self, f: float, ref: tuple[float, float]) -> tuple[float, float]:
+        """(mass [kg], friction) with the product ``f`` nearest ``ref``: along the last attributed
+        parameter's line, or before any attribution in the prior's metric (module doc)."""
+        m, mu = ref
+        if self.active == "box_mass":
+            return f / mu, mu
+        if self.active == "box_friction":
+            return m, f / m
+        g = np.log(max(f, 1e-12) / (m * mu))
+        return m * float(np.exp(self.share * g)), mu * float(np.exp((1.0 - self.share) * g))
+
+    def std(self) -> tuple[float, float]:
+        """σ (kg, 1) of the reference: the prior's relative σ, the windows' relative product σ added on the
+        parameter(s) that take a change of the product."""
+        m, mu = self.ref
+        f = m * mu
+        r = float(self.product.std[0]) / max(f, 1e-12)
+        wm = {"box_mass": 1.0, "box_friction": 0.0}.get(self.active, self.share)
+        return m * float(np.hypot(self.rel_std[0], r * wm)), mu * float(np.hypot(self.rel_std[1], r * (1 - wm)))

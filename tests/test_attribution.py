@@ -1,0 +1,126 @@
+"""The change attribution (amhe_cli/estimation/attribution.py): a reference moved by line decisions."""
+
+import numpy as np
+import pytest
+
+from amhe_cli.errors import AmheError
+from amhe_cli.estimation.attribution import FACTORS, SPAN, SplitTracker, line_minimum
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.model.params import ParameterSpace
+from amhe_cli.model.scene import Scene, SceneConfig
+
+
+def tracker(m=4.0, mu=0.5, rel_m=0.04, rel_mu=0.03):
+    return SplitTracker((0, 1), np.array([m, mu]), np.array([m * rel_m, mu * rel_mu]), np.array([0.45, 0.075]),
+                        0.01, 1.0)
+
+
+def cost(P, m, mu):
+    """A cost along the lines with its minimum at the truth (m, μ), as the shared cost has on clean data."""
+    return 100 * (np.log(P[:, 0] / m) ** 2 + np.log(P[:, 1] / mu) ** 2) + 1.0
+
+
+def step(tr, t, m, mu, rng, split_noise=0.3):
+    """One informative window at ``t`` whose split scatters along the product (what 1 mm poses do); the
+    decision that falls due scored by :func:`cost` as the estimator would (re-centred once at an edge)."""
+    r = np.exp(rng.normal(0, split_noise))
+    f = m * mu * np.exp(rng.normal(0, 0.05))
+    tr.fuse(t, np.array([np.sqrt(f) * r, np.sqrt(f) / r]))
+    due = tr.due()
+    if due is not None:
+        for retry in (True, False):
+            P = tr.candidates(np.zeros(2))
+            if tr.decide(t, due[1], P, cost(P, m, mu), retry) is not None:
+                break
+    return tr.ref
+
+
+def test_line_minimum_refines_between_grid_points_and_stays_at_an_end():
+    J = (np.log(FACTORS) - np.log(1.1)) ** 2
+    f, _ = line_minimum(FACTORS, J)
+    assert f == pytest.approx(1.1, rel=1e-6)
+    assert line_minimum(FACTORS, -np.log(FACTORS))[0] == FACTORS[-1]
+
+
+def test_with_no_change_the_split_stays_the_prior_s_whatever_the_windows_split():
+    tr = tracker()
+    assert tr.share == pytest.approx(0.04 ** 2 / (0.04 ** 2 + 0.03 ** 2))
+    m, mu = tr.split(2.2, (4.0, 0.5))  # 10 % more friction force: shared in the prior's metric
+    assert m * mu == pytest.approx(2.2)
+    assert np.log(m / 4.0) / np.log(mu / 0.5) == pytest.approx(tr.share / (1 - tr.share))
+    rng = np.random.default_rng(0)
+    for t in np.arange(0.5, 12.0, 0.5):
+        m, mu = step(tr, t, 4.0, 0.5, rng)
+    assert abs(m - 4.0) < 0.1 and abs(mu - 0.5) < 0.01  # window splits off ×1.35 (σ) each way
+    assert tr.decisions and all(d.reason == "period" and d.changed is None for d in tr.decisions)
+
+
+@pytest.mark.parametrize("m1, mu1, changed", [(6.0, 0.5, "box_mass"), (4.0, 0.8, "box_friction")])
+def test_a_change_is_detected_attributed_and_the_other_parameter_held(m1, mu1, changed):
+    tr = tracker()
+    rng = np.random.default_rng(1)
+    t = 0.5
+    while t < 10.0:
+        step(tr, t, 4.0, 0.5, rng)
+        t += 0.5
+    n_before = len(tr.decisions)
+    while t < 20.0:
+        m, mu = step(tr, t, m1, mu1, rng)
+        t += 0.5
+    new = tr.decisions[n_before:]
+    assert new[0].reason in ("provisional", "change", "period") and new[0].changed == changed
+    assert new[0].t <= 10.0 + 1.0 + SPAN + 0.5  # within a window's confirmation and a span of data
+    assert tr.active == changed and tr.pending is None
+    assert abs(m / m1 - 1) < 0.05 and abs(mu - mu1) < 0.02
+    # the line that is not the change's held the other at its value before it
+    held = [d.friction if changed == "box_mass" else d.mass for d in new if d.changed == changed]
+    np.testing.assert_allclose(held, 0.5 if changed == "box_mass" else 4.0, rtol=0.03)
+
+
+def test_a_line_minimum_at_its_end_is_scored_again_re_centred_and_beyond_that_nothing_moves():
+    tr = tracker()
+    tr.pending = (10.0, (4.0, 0.5))
+    P = tr.candidates(np.zeros(2))
+    assert tr.decide(12.0, "change", P, cost(P, 4.0, 1.5)) is None  # μ ×3: beyond the line's end
+    assert tr.center == pytest.approx(4.0 * 0.5 * FACTORS[-1])
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(12.0, "change", P, cost(P, 4.0, 1.5), retry=False)
+    assert d.changed == "box_friction" and d.friction == pytest.approx(1.5, rel=0.03) and tr.center is None
+    assert d.mass == 4.0 and tr.pending is None
+    # a minimum still at the end once re-centred is not placed by the data: the reference stays
+    tr.pending = (20.0, tr.ref)
+    P = tr.candidates(np.zeros(2))
+    assert tr.decide(22.0, "change", P, cost(P, 4.0, 30.0)) is None
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(22.0, "change", P, cost(P, 4.0, 30.0), retry=False)
+    assert d.changed is None and tr.ref == pytest.approx((4.0, d.friction)) and d.friction == pytest.approx(1.5, rel=0.03)
+
+
+def test_an_undecided_change_moves_the_friction_force_not_the_split():
+    tr = tracker()
+    tr.pending = (10.0, (4.0, 0.5))
+    P = tr.candidates(np.zeros(2))
+    J = np.tile(np.abs(np.log(FACTORS / 1.2)), 2)  # both lines alike, minimum at 1.2 × the product
+    d = tr.decide(11.0, "provisional", P, J)
+    assert d.changed is None and tr.active is None and tr.pending is not None and tr.due() is None
+    assert tr.ref[0] * tr.ref[1] == pytest.approx(1.2 * 2.0, rel=0.02)
+    assert np.log(tr.ref[0] / 4.0) / np.log(tr.ref[1] / 0.5) == pytest.approx(tr.share / (1 - tr.share), rel=0.01)
+
+
+def test_periodic_decisions_are_averaged_so_one_span_s_scatter_does_not_move_the_report():
+    tr = tracker()
+    tr.since = 0.0
+    for k in range(8):  # each span's line minimum 10 % off the truth's friction force, alternately
+        P = tr.candidates(np.zeros(2))
+        off = 1.21 if k % 2 == 0 else 1 / 1.21  # each line best at ±10 % of the product
+        d = tr.decide(2.0 * (k + 1), "period", P, cost(P, 4.0 * off ** 0.5, 0.5 * off ** 0.5))  # both lines alike
+        assert d.changed is None and d.reason == "period"
+        assert abs(tr.ref[0] * tr.ref[1] / 2.0 - 1) < 0.06  # one decision alone would be 10 % off
+    assert tr.ref[0] == pytest.approx(4.0, rel=0.05) and tr.ref[1] == pytest.approx(0.5, rel=0.05)
+
+
+def test_attribution_needs_the_mass_and_the_friction_free():
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass",))
+    with pytest.raises(AmheError, match="box_friction"):
+        MovingHorizonEstimator(scene, space, MHESettings(attribute=True))
