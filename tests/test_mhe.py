@@ -129,6 +129,27 @@ def test_fusion_reports_but_does_not_steer_the_windows(step_log):
     assert any(np.abs(fused[i].mean - raw[i].mean).max() > 1e-6 for i in informative)
 
 
+def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monkeypatch):
+    """With ``attribute`` the MHE reports the tracker's reference, moved by decisions scored on the log."""
+    from amhe_cli.estimation import attribution
+    monkeypatch.setattr(attribution, "PERIOD", 1.0)  # a decision every informative second, to keep this short
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    mu = step_log.meta["truth_series"]["box_friction"]
+    t_step = step_log.t[np.argmax(mu > 0.45)]
+    t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1)) as mhe:
+        assert mhe.lookback == attribution.LOOKBACK
+        ups = [mhe.update(step_log, t) for t in np.arange(t_push, min(t_push + 3.0, t_step), 0.5)]
+    tr = mhe.tracker
+    assert tr.decisions and all(d.reason == "period" for d in tr.decisions)
+    informative = [u for u in ups if not u.skipped]
+    np.testing.assert_allclose(informative[-1].mean, tr.ref)
+    # on the first floor, from the truth as its prior: the scored lines keep it there
+    assert abs(tr.ref[0] / 2.0 - 1) < 0.1 and abs(tr.ref[1] - 0.3) < 0.03
+
+
 # -- outputs and errors through the CLI ------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -169,6 +190,7 @@ def test_cli_csv_and_mcap_round_trip(step_mcap, tmp_path):
     (["--alpha", "1.5"], ["--alpha"]),
     (["--sweep", "colour=1,2"], ["--sweep"]),
     (["--fill", "0.5"], ["--fill 0.5", "needs --realtime"]),
+    (["--attribute"], ["--attribute", "--prior"]),
 ])
 def test_cli_errors(step_mcap, tmp_path, args, words):
     proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(tmp_path / "x.csv"), *args],

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from csv import writer as csv_writer
+from dataclasses import asdict
 
 import click
 import numpy as np
@@ -45,6 +46,10 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
 @click.option("--fuse/--no-fuse", default=REPLAY_SETTINGS["fuse"], show_default=True,
               help="Report the window estimates fused per parameter (Kalman arrival cost with change detection; "
                    "the windows themselves are unchanged). The CSV adds each window's own estimate as <name>_window.")
+@click.option("--attribute", is_flag=True,
+              help="Report the box's mass and friction from line decisions over seconds of data that tell which "
+                   "of the two changed, holding the other (docs/reference.md#change-attribution), instead of each "
+                   "window's split, which motion-capture noise blurs. Needs --prior: the split starts from a belief.")
 @click.option("--realtime", is_flag=True,
               help="Replay on the live clock as `amhe run`'s estimator lives: an update due while the last one "
                    "still runs is deferred (dropped), and an estimate is usable only after its compute.")
@@ -77,7 +82,7 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, realtime, duty, fill, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
+                   clip, max_steps, fuse, attribute, realtime, duty, fill, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
                    force, as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
@@ -91,10 +96,14 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     from amhe_cli.cli.plot import check_png_name, plot_estimates
     from amhe_cli.estimation.replay import estimates_table, replay, tracking_error, truth_series
     settings = MHESettings(window=window, every=every, iters=iters, samples=samples, alpha=alpha,
-                           clip=clip if clip > 0 else None, max_steps=max_steps, fuse=fuse, fill=fill, seed=seed)
+                           clip=clip if clip > 0 else None, max_steps=max_steps, fuse=fuse, fill=fill, seed=seed,
+                           attribute=attribute)
     settings.check()
     free = parse_names(params)
     smooth = parse_smooth(smooth)
+    if attribute and prior is None:
+        raise AmheError("--attribute holds the mass/friction split of a belief until a change shows which moved: "
+                        "give --prior BELIEF.yaml (from identify or probe)")
     if duty is not None and not realtime:
         raise AmheError(f"--duty {duty:g} shares the live clock's core: it needs --realtime")
     if fill is not None and not realtime:
@@ -129,6 +138,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         recorder = ViewRecorder() if mcap_path is not None else None
         view = View([server, recorder])
 
+    decisions = []
+
     def run_one(st: MHESettings):
         bar = progress_bar(round(problem.traj.duration, 2), "mhe-replay", quiet or as_json,
                         counter="{n:.1f}/{total:.1f} s of log")
@@ -137,6 +148,7 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
             hook = None if view is None else _view_hook(view, problem, truth)
             res = replay(problem.traj, mhe, realtime=realtime, duty=duty or 1.0,
                          progress=lambda t: bar.update(t - bar.n), on_update=hook)
+            decisions[:] = mhe.tracker.decisions if mhe.tracker is not None else []
         bar.close()
         return res
 
@@ -220,6 +232,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
     if errors:
         summary["tracking_error_units"] = {k: TRACKING_ERROR_UNITS[k] for k in errors}
         summary["tracking_error_definition"] = TRACKING_ERROR_TEXT
+    if attribute:
+        summary["decisions"] = [asdict(d) for d in decisions]
     if mcap_path is not None:
         summary["mcap"] = str(mcap_path)
     if plot_path is not None:
@@ -234,6 +248,11 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         if not h.endswith(("_std", "_window")):
             own = f" (last window's own: {final[h + '_window']:.4g})" if h + "_window" in final else ""
             click.echo(f"  final {h} = {v:.4g} ± {final[h + '_std']:.2g}{own}")
+    for d in decisions:
+        if d.changed is not None:
+            click.echo("  " + d.describe())
+    if attribute:
+        click.echo(f"  {len(decisions)} line decisions, {sum(d.changed is not None for d in decisions)} of them a change")
     if errors:
         n_seen = int((np.cumsum(~skipped) > 0).sum())
         click.echo(f"tracking error vs truth over {n_seen} updates: " + ", ".join(
