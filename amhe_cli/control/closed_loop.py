@@ -530,6 +530,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
 
     failure = None
     mhe_deferred = 0
+    n_decided = 0  # the MHE's line decisions already noted (MHESettings.attribute)
     mhe_steps: list[int] = []  # each informative update's step budget (MHESettings.fill)
     mhe_compute: list[float] = []  # each informative update's wall time [s]
     read_times: list[float] = []  # each read of the robot's servo and motors: wall time [s]
@@ -716,6 +717,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                             own = replace(res, mean=res.window_mean)
                             window = space.physical(_to_planner(own, estimator.mhe.space, space)[0])[0]
                         swap(*_to_planner(res, estimator.mhe.space, space), now, window)
+                        tracker = estimator.mhe.tracker
+                        for d in tracker.decisions[n_decided:] if tracker is not None else []:
+                            if d.changed is not None:
+                                note(d.describe())
+                        n_decided = len(tracker.decisions) if tracker is not None else 0
                 for text in estimator.take_errors():
                     warn(text)
                 if mhe_side is not None and not estimator.busy:
@@ -726,7 +732,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     # core share comes first); the lock-step loop waited for it above: submit never finds it busy
                     if clocked and not estimator.rested(mhe_duty):
                         mhe_deferred += 1
-                    elif estimator.submit(plant.trajectory(last=s.mhe.window + 0.01), now):
+                    elif estimator.submit(plant.trajectory(last=estimator.mhe.lookback + 0.01), now):
                         pending = True
                     next_update += s.mhe.every
             if read_on:
