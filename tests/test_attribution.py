@@ -93,7 +93,8 @@ def test_a_line_minimum_at_its_end_is_scored_again_re_centred_and_beyond_that_no
     assert tr.decide(22.0, "change", P, cost(P, 4.0, 30.0)) is None
     P = tr.candidates(np.zeros(2))
     d = tr.decide(22.0, "change", P, cost(P, 4.0, 30.0), retry=False)
-    assert d.changed is None and tr.ref == pytest.approx((4.0, d.friction)) and d.friction == pytest.approx(1.5, rel=0.03)
+    assert d.changed is None and tr.ref == pytest.approx((4.0, d.friction))
+    assert d.friction == pytest.approx(1.5, rel=0.03)
 
 
 def test_an_undecided_change_moves_the_friction_force_not_the_split():

@@ -48,7 +48,7 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
                    "the windows themselves are unchanged). The CSV adds each window's own estimate as <name>_window.")
 @click.option("--attribute", is_flag=True,
               help="Report the box's mass and friction from line decisions over seconds of data that tell which "
-                   "of the two changed, holding the other (docs/reference.md#change-attribution), instead of each "
+                   "of the two changed, holding the other (docs/config.md: mhe attribute), instead of each "
                    "window's split, which motion-capture noise blurs. Needs --prior: the split starts from a belief.")
 @click.option("--realtime", is_flag=True,
               help="Replay on the live clock as `amhe run`'s estimator lives: an update due while the last one "
@@ -82,8 +82,8 @@ TRACKING_ERROR_UNITS = {"box_mass": "% of truth", "box_friction": "absolute (fri
               help="PNG: each parameter [its unit] over log time [s], ±1σ, truth.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress on stderr (no bar, no progress lines).")
 def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, window, every, iters, samples, alpha,
-                   clip, max_steps, fuse, attribute, realtime, duty, fill, truth_csv, sweep, seeds, seed, threads, out, mcap_out, live,
-                   force, as_json, plot, quiet):
+                   clip, max_steps, fuse, attribute, realtime, duty, fill, truth_csv, sweep, seeds, seed, threads, out,
+                   mcap_out, live, force, as_json, plot, quiet):
     """Track box parameters over LOG with the sliding-window estimator (paper §IV-A, eq. 4).
 
     Outputs (--out CSV, --mcap, --plot) are refused if they exist, unless
@@ -252,7 +252,8 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
         if d.changed is not None:
             click.echo("  " + d.describe())
     if attribute:
-        click.echo(f"  {len(decisions)} line decisions, {sum(d.changed is not None for d in decisions)} of them a change")
+        n_changes = sum(d.changed is not None for d in decisions)
+        click.echo(f"  {len(decisions)} line decisions, {n_changes} of them a change")
     if errors:
         n_seen = int((np.cumsum(~skipped) > 0).sum())
         click.echo(f"tracking error vs truth over {n_seen} updates: " + ", ".join(

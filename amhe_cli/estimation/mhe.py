@@ -355,8 +355,8 @@ class MovingHorizonEstimator:
             try:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
-                    clips = sample_clips(traj, self.scene, ATTRIBUTION_CLIPS, horizon, self.rng, (since, float(traj.t[stop - 1])),
-                                         self.settings.min_speed, rest_travel(traj))
+                    clips = sample_clips(traj, self.scene, ATTRIBUTION_CLIPS, horizon, self.rng,
+                                         (since, float(traj.t[stop - 1])), self.settings.min_speed, rest_travel(traj))
             except AmheError:
                 clips = None  # not yet a clip's worth of data: the next update tries again
             if clips is not None:
