@@ -44,6 +44,7 @@ import numpy as np
 
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.fusion import WindowFusion
+from amhe_cli.estimation.surrogate import parabola_vertex
 
 #: Seconds of informative data (windows where the box moved) a line decision scores.
 SPAN = 2.0
@@ -105,12 +106,8 @@ def line_minimum(factors: np.ndarray, J: np.ndarray) -> tuple[float, float]:
     k = int(np.argmin(J))
     if k in (0, len(J) - 1) or not np.all(np.isfinite(J[k - 1:k + 2])):
         return float(factors[k]), float(J[k])
-    x = np.log(factors[k - 1:k + 2])
-    a, b, c = np.polyfit(x, J[k - 1:k + 2], 2)
-    if not a > 0:
-        return float(factors[k]), float(J[k])
-    xm = float(np.clip(-b / (2 * a), x[0], x[2]))
-    return float(np.exp(xm)), float(min(J[k], np.polyval([a, b, c], xm)))
+    xm, jm = parabola_vertex(np.log(factors[k - 1:k + 2]), J[k - 1:k + 2])
+    return float(np.exp(xm)), float(min(J[k], jm))
 
 
 class SplitTracker:

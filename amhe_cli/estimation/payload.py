@@ -29,6 +29,7 @@ import numpy as np
 
 from amhe_cli.estimation.clips import sample_rest_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
+from amhe_cli.estimation.surrogate import parabola_vertex
 from amhe_cli.estimation.uncertainty import curvature
 from amhe_cli.io.trajectory import Trajectory
 from amhe_cli.model.params import ParameterSpace
@@ -91,9 +92,7 @@ def fit_payload(traj: Trajectory, scene: Scene, n_clips: int = 32, horizon_range
         fine = fine[(fine > space.lower[0]) & (fine < space.upper[0])]
         j_fine = cost(fine[:, None])
         i = min(max(int(np.argmin(j_fine)), 1), len(fine) - 2)
-        a, b, _ = np.polyfit(fine[i - 1:i + 2], j_fine[i - 1:i + 2], 2)
-        value = float(-b / (2 * a)) if a > 0 else float(fine[i])
-        value = float(np.clip(value, fine[i - 1], fine[i + 1]))
+        value = parabola_vertex(fine[i - 1:i + 2], j_fine[i - 1:i + 2])[0]
         curv = curvature(cost, np.array([value]))
     return PayloadFit(value=value, std=float(curv.std[0]), clips=len(clips),
                       residual_rms=float(np.sqrt(curv.data / max(clips.steps, 1))),

@@ -30,6 +30,17 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def parabola_vertex(x: np.ndarray, J: np.ndarray) -> tuple[float, float]:
+    """(x, J) at the minimum of the parabola through three points of a 1-D scan, ``x`` (3,) ascending and their
+    costs ``J`` (3,): the vertex kept between ``x[0]`` and ``x[2]``, or the middle point where the three are
+    not convex. A 1-D scan's best point refined between its neighbours (payload, change attribution)."""
+    a, b, c = np.polyfit(x, J, 2)
+    if not a > 0:
+        return float(x[1]), float(J[1])
+    xm = float(np.clip(-b / (2 * a), x[0], x[2]))
+    return xm, float(np.polyval([a, b, c], xm))
+
+
 def features(U: np.ndarray) -> np.ndarray:
     """(n, d) points -> (n, 1 + d + d(d+1)/2) quadratic features [1, u_i, u_i u_j (i ≤ j)]."""
     n, d = U.shape
