@@ -146,7 +146,6 @@ class SplitTracker:
         f0 = m * mu
         self.product = WindowFusion(np.array([f0]), np.array([f0 * np.hypot(rm, ru)]),
                                     np.array([f0 * np.hypot(*rel(noise0))]), np.array([f0]), floor, window)
-        self.window = float(window)
         self.pending: tuple[float, tuple[float, float]] | None = None
         self.tried = False  # the pending change's provisional decision has been made
         self.since: float | None = None  # start [s] of the data the next periodic decision scores
@@ -163,14 +162,15 @@ class SplitTracker:
         first = held[0][0] if held else float(t)
         restarts = self.product.restarts
         self.product.update(t, np.array([float(window_mean[self.im] * window_mean[self.iu])]))
+        w = self.product.window
         if self.since is None:
-            self.since = float(t) - self.window
+            self.since = float(t) - w
         # new data this window brought: since the last informative one, at most a window's length
-        self.seen += self.window if self.last is None else min(t - self.last, self.window)
+        self.seen += w if self.last is None else min(t - self.last, w)
         self.last = float(t)
         if self.product.restarts > restarts and self.pending is None:
             self.pending, self.tried = (first, self.ref), False
-            self.seen = min(t - first, self.window)
+            self.seen = min(t - first, w)
 
     def due(self) -> tuple[float, str] | None:
         """``(since, reason)`` of the line decision due now (:class:`Decision`), else None."""
@@ -250,9 +250,7 @@ class SplitTracker:
             self.tried = True
         else:
             self.pending, self.since, self.seen = None, self.last, 0.0
-        fu_ = self.product
-        fu_.x[0], fu_.P[0] = self.ref[0] * self.ref[1], float(fu_.noise()[0])
-        fu_.held[0], fu_.cusum_hi[0], fu_.cusum_lo[0] = [], 0.0, 0.0
+        self.product.restart(0, self.ref[0] * self.ref[1])
 
     def split(self, f: float, ref: tuple[float, float]) -> tuple[float, float]:
         """(mass [kg], friction) with the product ``f`` nearest ``ref``: along the last attributed

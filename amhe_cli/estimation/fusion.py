@@ -166,6 +166,15 @@ class WindowFusion:
         mad = np.median(np.abs(diffs), axis=0)
         return np.maximum((mad / 0.6745 / np.sqrt(2.0)) ** 2, self.r_floor)
 
+    def restart(self, i: int, value: float, variance: float | None = None) -> None:
+        """Restart coordinate ``i`` at ``value`` with ``variance`` (None: one window's, :meth:`noise`), forgetting
+        what was held and the CUSUM sums: what a confirmed change does, and what an estimator that places the
+        value by other means (:mod:`~amhe_cli.estimation.attribution`) asks for."""
+        self.x[i] = value
+        self.P[i] = self.noise()[i] if variance is None else variance
+        self.held[i] = []
+        self.cusum_hi[i] = self.cusum_lo[i] = 0.0
+
     def update(self, t: float, y: np.ndarray) -> np.ndarray:
         """Fuse the estimate ``y`` (d,) of the window ending at ``t`` [s]; returns the fused (d,) estimate."""
         y = np.asarray(y, dtype=float)
@@ -185,9 +194,7 @@ class WindowFusion:
             if abs(z) > GATE:
                 held = [(tt, v) for tt, v in self.held[i] if np.sign(v - self.x[i]) == np.sign(nu)]
                 if held and t - self.window >= held[0][0] - 1e-9:  # confirmed by a window sharing no data
-                    self.x[i], self.P[i] = y[i], R[i]
-                    self.held[i] = []
-                    self.cusum_hi[i] = self.cusum_lo[i] = 0.0
+                    self.restart(i, y[i], R[i])
                     self.restarts += 1
                 else:
                     self.held[i] = held + [(t, y[i])]
