@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import FACTORS, SPAN, SplitTracker, line_minimum
+from amhe_cli.estimation.attribution import FACTORS, RETRY, SPAN, SplitTracker, line_minimum
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -97,15 +97,59 @@ def test_a_line_minimum_at_its_end_is_scored_again_re_centred_and_beyond_that_no
     assert d.friction == pytest.approx(1.5, rel=0.03)
 
 
-def test_an_undecided_change_moves_the_friction_force_not_the_split():
+def test_an_undecided_change_waits_for_data_after_it_then_moves_the_friction_force_not_the_split():
     tr = tracker()
-    tr.pending = (10.0, (4.0, 0.5))
+    tr.open(10.0, 1.0)
+    J = np.tile(np.abs(np.log(FACTORS / 1.5)), 2)  # both lines alike, minimum at 1.5 × the product
     P = tr.candidates(np.zeros(2))
-    J = np.tile(np.abs(np.log(FACTORS / 1.2)), 2)  # both lines alike, minimum at 1.2 × the product
     d = tr.decide(11.0, "provisional", P, J)
-    assert d.changed is None and tr.active is None and tr.pending is not None and tr.due() is None
-    assert tr.ref[0] * tr.ref[1] == pytest.approx(1.2 * 2.0, rel=0.02)
+    # too little after the change to tell which moved: nothing moves, tried again after RETRY s more data
+    assert d.changed is None and tr.ref == (4.0, 0.5) and tr.pending is not None and tr.due() is None
+    tr.seen += RETRY
+    assert tr.due() == (10.0, "provisional")
+    tr.seen = SPAN
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(12.0, "change", P, J)  # a whole span undecided: the force moves, split as the prior's
+    assert d.changed is None and tr.active is None and tr.pending is None
+    assert tr.ref[0] * tr.ref[1] == pytest.approx(1.5 * 2.0, rel=0.02)
     assert np.log(tr.ref[0] / 4.0) / np.log(tr.ref[1] / 0.5) == pytest.approx(tr.share / (1 - tr.share), rel=0.01)
+
+
+def test_a_change_s_decisions_add_up_so_a_longer_span_does_not_flip_a_decisive_shorter_one():
+    tr = tracker()
+    tr.open(10.0, 0.5)
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(10.5, "provisional", P, cost(P, 6.0, 0.5))  # the mass line clearly lower
+    assert d.changed == "box_mass" and tr.ref[0] == pytest.approx(6.0, rel=0.03)
+    assert tr.due() is None  # decided: no more provisional decisions, the final one after the span
+    tr.seen = SPAN
+    P = tr.candidates(np.zeros(2))
+    J = cost(P, 6.0, 0.5)
+    n = FACTORS.size
+    J[n:] = J[n:] - J[n:].min() + 0.8 * J[:n].min()  # alone, the friction line would win by 20 %
+    d = tr.decide(12.0, "change", P, J)
+    assert d.changed == "box_mass" and tr.active == "box_mass" and tr.ref[1] == 0.5
+
+
+def test_a_span_that_straddles_a_change_opens_one_from_its_middle_and_moves_nothing():
+    tr = tracker()
+    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(10.0, "period", P, np.tile(np.abs(np.log(FACTORS / 1.5)), 2))
+    assert d.changed is None and tr.ref == (4.0, 0.5)
+    assert tr.pending == (9.0, (4.0, 0.5)) and tr.seen == pytest.approx(1.0) and tr.due() is None
+
+
+@pytest.mark.parametrize("reason", ["period", "change"])
+def test_a_decisive_line_without_a_change_of_the_friction_force_is_averaged_not_attributed(reason):
+    tr = tracker()
+    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    if reason == "change":
+        tr.open(8.0, SPAN)
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(10.0, reason, P, cost(P, 4.0 * 1.1, 0.5))  # the mass line lower, the force 10 % up
+    assert d.changed is None and tr.active is None and tr.pending is None
+    assert tr.ref[0] * tr.ref[1] == pytest.approx(2.0 * np.sqrt(1.1), rel=0.02)  # averaged with the prior
 
 
 def test_periodic_decisions_are_averaged_so_one_span_s_scatter_does_not_move_the_report():
