@@ -92,9 +92,12 @@ class Decision:
     Attributes:
         t: time [s] of the update that made it.
         since: start [s] of the data it scored.
-        reason: ``change`` (the windows detected one; the final decision), ``provisional`` (the same, as
-            soon as it was confirmed) or ``period`` (:data:`PERIOD` seconds without a detected change).
-        changed: ``box_mass`` or ``box_friction`` where the gap was decisive, else None (product only).
+        reason: ``change`` (a change is pending: the windows detected it, or a periodic span read a moved
+            force with no decisive line; the final decision, :data:`SPAN` seconds of data after it),
+            ``provisional`` (the same, before: as soon as it is pending, and again every :data:`RETRY`
+            seconds of data until decisive) or ``period`` (:data:`PERIOD` seconds without a pending change).
+        changed: ``box_mass`` or ``box_friction`` where the force moved and the gap (summed over a change's
+            decisions) was decisive, else None (the force averaged or split, or nothing moved yet).
         mass, friction: the new reference [kg], [-].
         cost: the two lines' lowest costs, name -> J (data term only).
     """
@@ -168,7 +171,7 @@ class SplitTracker:
         self.pending: tuple[float, tuple[float, float]] | None = None
         self.tried = False  # the pending change's provisional decision has attributed it
         self.retry_at = 0.0  # ``seen`` [s] from which an undecided provisional decision is tried again
-        self.evidence = np.zeros(2)
+        self.evidence = np.zeros(2)  # the pending change's lines' lowest costs, summed over its decisions
         self.since: float | None = None  # start [s] of the data the next periodic decision scores
         self.seen = 0.0  # seconds of informative windows since then (or since the pending change showed)
         self.last: float | None = None  # end [s] of the last informative window
