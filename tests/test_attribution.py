@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import FACTORS, RETRY, SPAN, SplitTracker, line_minimum
+from amhe_cli.estimation.attribution import FACTORS, QUIET, RETRY, SPAN, SplitTracker, line_minimum
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -129,6 +129,28 @@ def test_a_change_s_decisions_add_up_so_a_longer_span_does_not_flip_a_decisive_s
     J[n:] = J[n:] - J[n:].min() + 0.8 * J[:n].min()  # alone, the friction line would win by 20 %
     d = tr.decide(12.0, "change", P, J)
     assert d.changed == "box_mass" and tr.active == "box_mass" and tr.ref[1] == 0.5
+
+
+def test_the_windows_still_following_an_attributed_change_open_no_new_one_for_a_span():
+    tr = tracker()
+    rng = np.random.default_rng(3)
+    for t in np.arange(0.5, 6.0, 0.5):
+        step(tr, t, 4.0, 0.5, rng)
+    tr.open(6.0, 1.0)
+    P = tr.candidates(np.zeros(2))
+    tr.decide(7.0, "provisional", P, cost(P, 4.0, 0.8))
+    tr.seen = SPAN
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(8.0, "change", P, cost(P, 4.0, 0.8))
+    assert d.changed == "box_friction" and tr.pending is None and tr.quiet_until == pytest.approx(8.0 + QUIET)
+    # windows still climbing towards the new force (their p̂⁻ lags), 25 % under it: confirmed as a change
+    # by the window that shares no data with the first (9.5 s), which the quiet span ignores
+    restarts = tr.product.restarts
+    for t in (8.5, 9.0, 9.5):
+        tr.fuse(t, np.array([2.4 / 0.8, 0.8]))
+        assert tr.pending is None
+    assert tr.product.restarts > restarts
+    assert tr.ref == pytest.approx((4.0, d.friction))
 
 
 def test_a_span_that_straddles_a_change_opens_one_from_its_middle_and_moves_nothing():
