@@ -40,8 +40,8 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
 
 *Measured* (``benchmarks/mhe_accuracy.py`` without the clock, 1 mm / 0.2° motion capture, docs/evaluation.md
 "Change attribution, decided on the data after the change"): from 3 s after the change, mass within 10 %
-and μ within 0.05 on 11 of 16 noisy T3/T4 recordings (5 of the 8 recorded after these rules were set),
-against 8 of 16 for the rules before (lines over ½–2×, a straddling or undecided span's reading averaged
+and μ within 0.05 on 12 of 16 noisy T3/T4 recordings (5 of the 8 that were never traced), against 8
+of 16 for the rules before (lines over ½–2×, a straddling or undecided span's reading averaged
 or split at once, the last decision alone). On one core a decision takes seconds: on the live clock it
 held 0 of 8.
 
