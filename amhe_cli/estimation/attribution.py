@@ -176,8 +176,8 @@ class SplitTracker:
         self.product = WindowFusion(np.array([f0]), np.array([f0 * np.hypot(rm, ru)]),
                                     np.array([f0 * np.hypot(*rel(noise0))]), np.array([f0]), floor, window)
         self.pending: tuple[float, tuple[float, float]] | None = None
-        self.tried = False  # the pending change's provisional decision has attributed it
-        self.retry_at = 0.0  # ``seen`` [s] from which an undecided provisional decision is tried again
+        # ``seen`` [s] from which the pending change's next provisional decision is due: inf once one attributed it
+        self.retry_at = 0.0
         self.evidence = np.zeros(2)  # the pending change's lines' lowest costs, summed over its decisions
         self.quiet_until = -np.inf  # data time [s] before which the windows open no change (:data:`QUIET`)
         self.since: float | None = None  # start [s] of the data the next periodic decision scores
@@ -208,7 +208,7 @@ class SplitTracker:
         if self.pending is not None:
             if self.seen >= SPAN - 1e-9:
                 return self.pending[0], "change"
-            if self.tried or self.seen < self.retry_at - 1e-9:
+            if self.seen < self.retry_at - 1e-9:
                 return None
             return self.pending[0], "provisional"
         if self.since is not None and self.seen >= PERIOD - 1e-9:
@@ -247,15 +247,12 @@ class SplitTracker:
         f_c = float(P[0, self.im] * P[0, self.iu]) / FACTORS[0]  # the product the lines are centred on
         fm, fu = gm * f_c / (m0 * mu0), gu * f_c / (m0 * mu0)  # as factors of the split held
         since = self.pending[0] if self.pending is not None else self.since
-        changed = None
+        changed, wait = None, False  # wait: nothing decided yet, the pending change tried again on more data
+        cost = {"box_mass": float(jm), "box_friction": float(ju)}
         if not FACTORS[0] < (gu if ju < jm else gm) < FACTORS[-1]:
             # the better line's minimum at its end, re-centred or not: the data do not place it (a span that
             # straddles a change, a push too slow to tell): nothing moves
-            d = Decision(t, since, reason, None, *self.ref, {"box_mass": float(jm), "box_friction": float(ju)})
-            self.decisions.append(d)
-            self._settle(reason)
-            return d
-        cost = {"box_mass": float(jm), "box_friction": float(ju)}
+            return self._record(Decision(t, since, reason, None, *self.ref, cost), False)
         if self.pending is not None:
             # a pending change's decisions add up: each scores its own clips of the data since the change
             self.evidence += (jm, ju)
@@ -265,56 +262,51 @@ class SplitTracker:
         better = fm if jm <= ju else fu  # the friction force the better line reads, as a factor of the held one
         if abs(np.log(better)) < CHANGE:
             # no change of the friction force (whichever line was lower: with the force unchanged a line's
-            # preference is the span's noise): one more reading of it, averaged along the usual line
+            # preference is the span's noise): one more reading of it, averaged along the usual line; a
+            # provisional decision looks again with more data (the windows' change is not in it yet)
+            changed, wait = None, reason == "provisional"
             self.averaged = min(self.averaged + 1, AVERAGE)
-            f = m0 * mu0 * float(np.exp(np.log(better) / self.averaged))
-            self.ref = self.split(f, (m0, mu0))
-            d = Decision(t, since, reason, None, *self.ref, cost)
-            self.decisions.append(d)
-            if reason == "provisional":  # the windows' change is not in the data yet: look again with more
-                self.retry_at = self.seen + RETRY
-                self.product.restart(0, self.ref[0] * self.ref[1])
-            else:
-                self._settle(reason)
-            return d
-        if changed is not None or reason == "change":
-            self.quiet_until = float(t) + QUIET
-        if changed is not None:
+            self.ref = self.split(m0 * mu0 * float(np.exp(np.log(better) / self.averaged)), (m0, mu0))
+        elif changed is not None:
             self.ref = (m0 * fm, mu0) if changed == "box_mass" else (m0, mu0 * fu)
-            self.active, self.averaged = changed, 1
+            self.active, self.averaged, self.quiet_until = changed, 1, float(t) + QUIET
         elif reason == "change":
             # which moved is undecided after a whole span; the friction force is not: the better line's, split
             # as before
             self.ref = self.split(m0 * mu0 * better, (m0, mu0))
-            self.averaged = 1
+            self.averaged, self.quiet_until = 1, float(t) + QUIET
         else:
             # the force moved and the span cannot tell which: a periodic span straddles the change, a
             # provisional one holds too little after it. Nothing moves; the change is decided on the data
             # after it, tried again as it comes in (a periodic span's change is placed at its middle)
-            d = Decision(t, since, reason, None, *self.ref, cost)
-            self.decisions.append(d)
+            wait = True
             if reason == "period":
                 start = 0.5 * (since + self.last)
                 self.open(start, self.last - start)
+        return self._record(Decision(t, since, reason, changed, *self.ref, cost), wait)
+
+    def _record(self, d: Decision, wait: bool) -> Decision:
+        """Keep the decision ``d``; then, with ``wait``, try the pending change again after :data:`RETRY` s
+        of data, else settle (:meth:`_settle`). The product's fusion restarts at the reference either way."""
+        self.decisions.append(d)
+        if wait:
             self.retry_at = self.seen + RETRY
             self.product.restart(0, self.ref[0] * self.ref[1])
-            return d
-        d = Decision(t, since, reason, changed, *self.ref, cost)
-        self.decisions.append(d)
-        self._settle(reason)
+        else:
+            self._settle(d.reason)
         return d
 
     def open(self, since: float, seen: float) -> None:
         """A change is pending from ``since`` [s], with ``seen`` seconds of data after it in: decided on the
         data after it, the lines holding the split before it."""
-        self.pending, self.tried, self.retry_at, self.seen = (since, self.ref), False, 0.0, seen
+        self.pending, self.retry_at, self.seen = (since, self.ref), 0.0, seen
         self.evidence = np.zeros(2)  # the lines' lowest costs summed over the change's decisions
 
     def _settle(self, reason: str) -> None:
         """After a decision: the pending change stays for its final one, or the next span starts; the
         product's fusion restarts at the reference."""
         if reason == "provisional":
-            self.tried = True
+            self.retry_at = np.inf  # attributed: the final decision comes after the span
         else:
             self.pending, self.since, self.seen = None, self.last, 0.0
         self.product.restart(0, self.ref[0] * self.ref[1])
