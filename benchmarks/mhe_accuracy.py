@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/mhe_accuracy.py [--mass-switch LOG ...] [--friction-step LOG ...] [--sliding LOG ...]
-        [--seeds 6] [--jobs 4] [--config name:key=value;key=value ...] [--only NAME,...] [--out rows.jsonl]
+        [--seeds 6] [--first-seed 0] [--jobs 4] [--config name:key=value;key=value ...] [--only NAME,...] [--out rows.jsonl]
 
 Targets: on a mass-switch log (4 -> 6 kg at 10 s) the
 mass is within 10 % of 4 kg over 8-10 s and of 6 kg from 13 s on, friction
@@ -92,6 +92,7 @@ def main() -> None:
     ap.add_argument("--friction-step", nargs="+", default=[])
     ap.add_argument("--sliding", nargs="+", default=[])
     ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds run are first-seed .. first-seed + seeds - 1")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--config", action="append", default=None, help="name:key=value;key=value (python literals)")
@@ -111,7 +112,7 @@ def main() -> None:
         configs = {k: v for k, v in configs.items() if k in a.only.split(",")}
     jobs, keys = [], []
     for name, kw in configs.items():
-        for seed in range(a.seeds):
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
             for log in a.mass_switch:
                 jobs.append((log, "mass", kw, seed, a.threads, a.prior, a.realtime))
                 keys.append(name)

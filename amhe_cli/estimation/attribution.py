@@ -39,11 +39,12 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
 
 *Measured* (``benchmarks/mhe_accuracy.py`` without the clock, 1 mm / 0.2° motion capture, docs/evaluation.md
-"Change attribution, decided on the data after the change"): from 3 s after the change, mass within 10 %
-and μ within 0.05 on 12 of 16 noisy T3/T4 recordings (5 of the 8 that were never traced), against 8
-of 16 for the rules before (lines over ½–2×, a straddling or undecided span's reading averaged
-or split at once, the last decision alone). On one core a decision takes seconds: on the live clock it
-held 0 of 8.
+"Change attribution, decided on the data after the change" and "Line decisions on the GPU beside CPU
+windows"): from 3 s after the change, mass within 10 % and μ within 0.05 on 12 of 16 noisy T3/T4
+recordings on one seed, against 8 of 16 for the rules before (lines over ½–2×, a straddling or undecided
+span's reading averaged or split at once, the last decision alone); over four seeds on 12 of them, 31 of
+48 replays (4 to 10 of 12 per seed). On one core a decision takes seconds: on the live clock it held 0 of
+8; with the decisions on a GPU (``MHESettings.attribute_device``) 21 of 48.
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
