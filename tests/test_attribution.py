@@ -191,3 +191,29 @@ def test_attribution_needs_the_mass_and_the_friction_free():
     space = ParameterSpace(scene, free=("box_mass",))
     with pytest.raises(AmheError, match="box_friction"):
         MovingHorizonEstimator(scene, space, MHESettings(attribute=True))
+
+
+def test_the_estimates_plot_marks_each_attribution_on_its_parameter(tmp_path):
+    """`mhe-replay --attribute --plot`: an attribution is drawn where it was made (a green line) over the data
+    it read (a band), on its own parameter's axis; a plot without decisions has no such mark."""
+    import matplotlib.image as mpimg
+
+    from amhe_cli.cli.plot import plot_estimates
+    from amhe_cli.estimation.attribution import Decision
+    t = np.arange(0.0, 10.0, 0.5)
+    head = ["t", "box_mass", "box_mass_std", "box_friction", "box_friction_std"]
+    rows = np.column_stack([t, np.where(t < 6, 4.0, 6.0), np.full_like(t, 0.2), np.full_like(t, 0.5),
+                            np.full_like(t, 0.02)])
+    moved = Decision(6.0, 4.5, "provisional", "box_mass", 6.0, 0.5, {"box_mass": 1.0, "box_friction": 2.0})
+    undecided = Decision(2.0, 0.0, "period", None, 4.0, 0.5, {"box_mass": 1.0, "box_friction": 1.0})
+    def green(path):
+        """(H, W) pixels where green stands out: the attribution's marks (tab:green) and nothing else drawn."""
+        img = mpimg.imread(path)[..., :3]
+        return img[..., 1] - np.maximum(img[..., 0], img[..., 2]) > 0.25
+
+    plain = green(plot_estimates(tmp_path / "plain.png", head, rows, decisions=[undecided]))
+    marked = green(plot_estimates(tmp_path / "marked.png", head, rows, decisions=[undecided, moved]))
+    assert not plain.any()  # an undecided decision marks nothing
+    tall = np.flatnonzero(marked.sum(axis=0) > 100)  # the line where it was attributed spans its axis
+    assert 0 < tall.size < 5
+    assert np.flatnonzero(marked.any(axis=1)).max() < marked.shape[0] / 2  # the mass axis (upper), not μ's

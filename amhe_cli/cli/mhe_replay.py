@@ -216,7 +216,7 @@ def mhe_replay_cmd(log, topics, map_file, box_size, smooth, params, prior, windo
             recorder.write(mlog, frames)
     skipped = np.array([u.skipped for u in res.updates])
     if plot_path is not None:
-        plot_estimates(plot_path, head, table, truth, skipped)
+        plot_estimates(plot_path, head, table, truth, skipped, decisions)
     errors = tracking_error(problem.space, res, truth) if truth else {}
     lags = res.lags
     summary = {

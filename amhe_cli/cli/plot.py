@@ -221,7 +221,7 @@ def plot_identify(path, result, cost_rollout, traj=None, truth: dict | None = No
     return path
 
 
-def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=None) -> Path:
+def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=None, decisions=()) -> Path:
     """Each estimated parameter over time with its ±1σ band and the truth where known.
 
     Args:
@@ -231,6 +231,9 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
             present, are drawn as dots behind the fused estimate.
         truth: a :class:`~amhe_cli.estimation.replay.TruthSeries` or None.
         skipped: (n,) bool, updates whose window held no information (marked).
+        decisions: the change attribution's :class:`~amhe_cli.estimation.attribution.Decision` list
+            (``mhe-replay --attribute``): each attribution is marked on its parameter's axis, a line at the
+            time it was made and a band over the data it read.
     """
     plt = _pyplot()
     path = _check_png(path)
@@ -248,6 +251,10 @@ def plot_estimates(path, head: list[str], rows: np.ndarray, truth=None, skipped=
                            "fused estimate" if fused else "estimate")
         if skipped is not None and np.any(skipped):
             ax.plot(t[skipped], v[skipped], "x", color="0.5", ms=4, label="kept (window at rest)")
+        for k, d in enumerate(d for d in decisions if d.changed == name):
+            ax.axvspan(d.since, d.t, color="tab:green", alpha=0.12, lw=0,
+                       label=None if k else "data an attribution read")
+            ax.axvline(d.t, color="tab:green", ls="--", lw=1.5, label=None if k else "change attributed here")
         if truth is not None:
             base, _, idx = name.rpartition("_")
             key, col = (base, int(idx)) if idx.isdigit() and base in truth.values else (name, None)
