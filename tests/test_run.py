@@ -1247,6 +1247,11 @@ def _loopback_only(cmd: list) -> list:
 RAY_GRID = {"task": "t1", "modes": ["true"], "seeds": 2, "duration": 0.3}
 
 
+def _without_rate(rows) -> list[dict]:
+    """``rows`` by seed, control_hz (a wall-clock rate, the one field runs may not share) left out."""
+    return [{k: v for k, v in r.items() if k != "control_hz"} for r in sorted(rows, key=lambda r: r["seed"])]
+
+
 @pytest.fixture(scope="module")
 def pool_rows():
     """:data:`RAY_GRID`'s rows from the local process pool (two workers), by seed, control_hz (a wall-clock
@@ -1254,7 +1259,7 @@ def pool_rows():
     from amhe_cli.control.evaluate import evaluate
     g = RAY_GRID
     rows = evaluate(g["task"], g["modes"], g["seeds"], None, workers=2, duration=g["duration"])
-    return [{k: v for k, v in r.items() if k != "control_hz"} for r in sorted(rows, key=lambda r: r["seed"])]
+    return _without_rate(rows)
 
 
 def test_evaluate_on_a_local_ray_instance_gives_the_local_pools_rows(tmp_path, pool_rows):
@@ -1274,7 +1279,7 @@ def test_evaluate_on_a_local_ray_instance_gives_the_local_pools_rows(tmp_path, p
     assert on_ray.returncode == 0, on_ray.stderr[-2000:]
     rows = sorted(read_rows(tmp_path / "ray.csv"), key=lambda r: r["seed"])
     assert [r["seed"] for r in rows] == [0, 1]
-    assert [{k: v for k, v in r.items() if k != "control_hz"} for r in rows] == pool_rows
+    assert _without_rate(rows) == pool_rows
 
 
 class _InProcessRay:
@@ -1334,8 +1339,7 @@ def test_evaluate_as_ray_tasks_gives_the_local_pools_rows(monkeypatch, pool_rows
     assert [r["seed"] for r in rows] == [1, 0] and seen == rows  # as they finish
     assert fake.inits == [{"include_dashboard": False, "log_to_driver": False, "configure_logging": False,
                            "num_cpus": 2}] and fake.shutdowns == 1
-    by_seed = sorted(rows, key=lambda r: r["seed"])
-    assert [{k: v for k, v in r.items() if k != "control_hz"} for r in by_seed] == pool_rows
+    assert _without_rate(rows) == pool_rows
 
 
 def test_evaluate_refuses_a_ray_address_where_nothing_answers(tmp_path, capsys):

@@ -292,9 +292,9 @@ class SplitTracker:
         self.decisions.append(d)
         if wait:
             self.retry_at = self.seen + RETRY
-            self.product.restart(0, self.ref[0] * self.ref[1])
         else:
             self._settle(d.reason)
+        self.product.restart(0, self.ref[0] * self.ref[1])
         return d
 
     def open(self, since: float, seen: float) -> None:
@@ -304,13 +304,11 @@ class SplitTracker:
         self.evidence = np.zeros(2)  # the lines' lowest costs summed over the change's decisions
 
     def _settle(self, reason: str) -> None:
-        """After a decision: the pending change stays for its final one, or the next span starts; the
-        product's fusion restarts at the reference."""
+        """After a decision: the pending change stays for its final one, or the next span starts."""
         if reason == "provisional":
             self.retry_at = np.inf  # attributed: the final decision comes after the span
         else:
             self.pending, self.since, self.seen = None, self.last, 0.0
-        self.product.restart(0, self.ref[0] * self.ref[1])
 
     def split(self, f: float, ref: tuple[float, float]) -> tuple[float, float]:
         """(mass [kg], friction) with the product ``f`` nearest ``ref``: along the last attributed

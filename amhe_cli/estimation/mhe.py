@@ -374,13 +374,7 @@ class MovingHorizonEstimator:
             except AmheError:
                 clips = None  # not yet a clip's worth of data: the next update tries again
             if clips is not None:
-                cost = self._cost
-                if self._decide_pool is not None:
-                    if self._decide_cost is None:
-                        self._decide_cost = RolloutCost(self.scene, self.space, clips, self._cost.weights,
-                                                        pool=self._decide_pool)
-                    cost = self._decide_cost
-                cost.set_clips(clips, self._cost.weights)
+                cost = self._decision_cost(clips)
                 # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
                 # decision's end stays: its data may straddle a change the windows have not confirmed)
                 for retry in ((True, False) if reason != "period" else (False,)):
@@ -390,6 +384,18 @@ class MovingHorizonEstimator:
         self.mean, self.std = self.mean.copy(), self.std.copy()
         self.mean[tr.im], self.mean[tr.iu] = tr.ref
         self.std[tr.im], self.std[tr.iu] = tr.std()
+
+    def _decision_cost(self, clips) -> RolloutCost:
+        """The cost a line decision scores ``clips`` with: the windows' own, or with ``attribute_device`` one
+        on the decisions' backend (the windows' ``W_x``)."""
+        if self._decide_pool is None:
+            self._cost.set_clips(clips)
+            return self._cost
+        if self._decide_cost is None:
+            self._decide_cost = RolloutCost(self.scene, self.space, clips, self._cost.weights, pool=self._decide_pool)
+        else:
+            self._decide_cost.set_clips(clips, self._cost.weights)
+        return self._decide_cost
 
     def update(self, traj: Trajectory, t: float) -> Update:
         """Re-estimate from the window of ``traj`` that ends at time ``t`` [s] (eq. 4, Algorithm 1).
