@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import FACTORS, QUIET, RETRY, SPAN, SplitTracker, line_minimum
+from amhe_cli.estimation.attribution import FACTORS, FINE, QUIET, RETRY, SPAN, SplitTracker, line_minimum
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -75,6 +75,44 @@ def test_a_change_is_detected_attributed_and_the_other_parameter_held(m1, mu1, c
     # the line that is not the change's held the other at its value before it
     held = [d.friction if changed == "box_mass" else d.mass for d in new if d.changed == changed]
     np.testing.assert_allclose(held, 0.5 if changed == "box_mass" else 4.0, rtol=0.03)
+
+
+def test_the_lines_are_compared_at_evaluated_points_not_at_a_parabola_s_extrapolated_minimum():
+    """A mass switch whose friction line has a steep wall past its minimum (as noisy T3 data has it): the
+    parabola through the friction line's best grid points dips to ~111, below any point of it (>= 125) and
+    within the decisive gap of the mass line's 100. The lines are compared at evaluated points: the mass
+    line wins by 20 %; scored, the points around each line's best (:data:`FINE`) bring both nearer."""
+    def mass_line(P):
+        return 100 + 30 * np.abs(np.log(P[:, 0] / 6.0)) ** 1.5
+
+    def friction_line(P):
+        x = np.log(P[:, 1] / (0.5 * 1.35))
+        return 125 + np.where(x < 0, -20 * x, 1000 * x)
+
+    def lines(P, half):
+        return np.r_[mass_line(P[:half]), friction_line(P[half:])]
+
+    n, asked = FACTORS.size, []
+
+    def score(R):
+        asked.append(R)
+        return lines(R, FINE.size)
+
+    decisions = []
+    for refine in (None, score):
+        tr = tracker()
+        tr.open(10.0, SPAN)
+        P = tr.candidates(np.zeros(2))
+        decisions.append(tr.decide(12.0, "change", P, lines(P, n), retry=False, score=refine))
+    grid, fine = decisions
+    k = int(np.argmin(friction_line(P[n:])))
+    assert grid.cost["box_friction"] == pytest.approx(friction_line(P[n:])[k])  # a point's, not the parabola's
+    assert grid.changed == "box_mass" and grid.friction == 0.5
+    (R,) = asked
+    assert R.shape == (2 * FINE.size, 2) and np.all(R[:FINE.size, 1] == 0.5) and np.all(R[FINE.size:, 0] == 4.0)
+    assert fine.changed == "box_mass" and fine.friction == 0.5
+    assert fine.cost["box_friction"] < grid.cost["box_friction"] and fine.cost["box_friction"] >= 125
+    assert abs(fine.mass - 6.0) < abs(grid.mass - 6.0) and fine.mass == pytest.approx(6.0, rel=0.03)
 
 
 def test_a_line_minimum_at_its_end_is_scored_again_re_centred_and_beyond_that_nothing_moves():

@@ -14,7 +14,8 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   ``probe``/``identify``, whose manoeuvre excites what the windows cannot) and moves only by a *line
   decision*, over :data:`SPAN` seconds of informative data with clips drawn as ``identify`` draws them:
   :data:`FACTORS` × the reference's value on each of the two lines are scored (the shared cost, data term
-  only), each line's minimum refined by a parabola through its best point and neighbours;
+  only), then :data:`FINE` points around each line's best; a line's minimum lies where the parabola through
+  its best point and neighbours puts it, and costs what its best evaluated point does;
 
   - where the better line reads the same friction force as the reference (within :data:`CHANGE` in log),
     nothing changed, whichever line was lower: the reading is averaged into the reference (its ``ln m·μ``,
@@ -43,8 +44,9 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
 windows"): from 3 s after the change, mass within 10 % and μ within 0.05 on 12 of 16 noisy T3/T4
 recordings on one seed, against 8 of 16 for the rules before (lines over ½–2×, a straddling or undecided
 span's reading averaged or split at once, the last decision alone); over four seeds on 12 of them, 31 of
-48 replays (4 to 10 of 12 per seed). On one core a decision takes seconds: on the live clock it held 0 of
-8; with the decisions on a GPU (``MHESettings.attribute_device``) 21 of 48.
+48 replays (4 to 10 of 12 per seed), and with the lines compared at evaluated points (:data:`FINE`) 32 of
+48 (T4 16 of 16). On one core a decision takes seconds: on the live clock it held 0 of 8; with the
+decisions on a GPU (``MHESettings.attribute_device``) 21 of 48 (before :data:`FINE`).
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
@@ -69,6 +71,15 @@ LOOKBACK = 4 * SPAN
 #: A friction that doubles (T4's 0.4 -> 0.8) lay at the end of the earlier ½–2× line whenever the windows'
 #: product had not yet moved, and a minimum at a periodic line's end moves nothing.
 FACTORS = np.exp(np.linspace(np.log(1 / 3), np.log(3.0), 11))
+#: Points a decision adds on each line around its best grid point, as powers of the grid's step (×1.25):
+#: the lines are compared at evaluated points, the nearest a sixth of a step from each minimum. Compared at
+#: the vertex of the parabola through three grid points, as before, the friction line's minimum lay up to
+#: 20 % of the cost below any point of it on noisy T3 data (its cost rises steeper than a parabola past the
+#: minimum): on ``t3_s5_n3``, 32 clips over the 2.5 s after the switch, the lines' minima on a fine grid
+#: 1396 / 1723 (mass / friction), the parabolas' 1351 / 1404, a gap under :data:`DECISIVE_GAP`. *Measured*
+#: over 12 noisy recordings × 4 seeds (docs/evaluation.md "Lines compared at evaluated points"): T4 16 of
+#: 16 against 12, T3 16 of 32 against 19, together 32 of 48 against 31.
+FINE = np.array([-2.0, -1.0, 1.0, 2.0]) / 3.0
 #: Clips a line decision draws, as ``identify`` draws them for the log's noise (its 32, of 0.1–0.2 s on a
 #: noisy log). Half as many, on a replay of the live clock, lost the mass switch more often.
 CLIPS = 32
@@ -131,13 +142,20 @@ class Decision:
 
 
 def line_minimum(factors: np.ndarray, J: np.ndarray) -> tuple[float, float]:
-    """(factor, cost) of a line's minimum: the best point refined by the parabola through it and its two
-    neighbours (in log factor), kept inside them; the best point itself at an end of the line."""
+    """(factor, cost) of a line's minimum over points ``factors`` (ascending, duplicates allowed) with costs
+    ``J``: where it lies, the best point refined by the parabola through it and its two neighbours (in log
+    factor), kept inside them, or the best point itself at an end of the line; its cost, the best point's own
+    (evaluated, not the parabola's: :data:`FINE`)."""
+    factors, J = np.asarray(factors, dtype=float), np.asarray(J, dtype=float)
+    order = np.lexsort((J, factors))  # by factor, the lowest cost first among equal ones
+    factors, J = factors[order], J[order]
+    keep = np.r_[True, np.diff(factors) > 0]
+    factors, J = factors[keep], J[keep]
     k = int(np.argmin(J))
     if k in (0, len(J) - 1) or not np.all(np.isfinite(J[k - 1:k + 2])):
         return float(factors[k]), float(J[k])
-    xm, jm = parabola_vertex(np.log(factors[k - 1:k + 2]), J[k - 1:k + 2])
-    return float(np.exp(xm)), float(min(J[k], jm))
+    xm, _ = parabola_vertex(np.log(factors[k - 1:k + 2]), J[k - 1:k + 2])
+    return float(np.exp(xm)), float(J[k])
 
 
 class SplitTracker:
@@ -230,12 +248,29 @@ class SplitTracker:
         P[n:, self.im], P[n:, self.iu] = m, f / m * FACTORS
         return P
 
-    def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True) -> Decision | None:
+    def refinements(self, P: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points around each line's best of :meth:`candidates` ``P`` (costs ``J``): ``(R, g_mass, g_friction)``,
+        ``R`` (2·len(FINE), d) the mass line's then the friction line's, ``g_*`` (len(FINE),) their factors
+        (:data:`FINE` steps from the best grid point, kept on the line)."""
+        n = FACTORS.size
+        step = FACTORS[1] / FACTORS[0]
+        J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
+        g = [np.clip(FACTORS[int(np.argmin(J[i * n:(i + 1) * n]))] * step ** FINE, FACTORS[0], FACTORS[-1])
+             for i in (0, 1)]
+        R = np.repeat(np.asarray(P[[0, n]], dtype=float), FINE.size, axis=0)
+        R[:FINE.size, self.im] = P[0, self.im] / FACTORS[0] * g[0]
+        R[FINE.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g[1]
+        return R, g[0], g[1]
+
+    def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True,
+               score=None) -> Decision | None:
         """Move the reference by the costs ``J`` (2·len(FACTORS),) of :meth:`candidates` ``P`` (module doc).
 
         Where the better line's minimum lies at its end and ``retry`` is set, nothing is decided: the lines
         are re-centred there (:attr:`center`) for the caller to score once more, and None is returned; at
-        its end without ``retry``, the reference stays (a decision with ``changed`` None)."""
+        its end without ``retry``, the reference stays (a decision with ``changed`` None). ``score`` (the
+        same cost: (B, d) candidates -> (B,) costs), where given, scores :meth:`refinements` first, so each
+        line's minimum is compared at an evaluated point near it (:data:`FINE`)."""
         n = FACTORS.size
         J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
         k = int(np.argmin(J))
@@ -243,7 +278,14 @@ class SplitTracker:
             self.center = float(P[k, self.im] * P[k, self.iu])
             return None
         self.center = None
-        (gm, jm), (gu, ju) = line_minimum(FACTORS, J[:n]), line_minimum(FACTORS, J[n:])
+        lines = [(FACTORS, J[:n]), (FACTORS, J[n:])]
+        if score is not None:
+            R, g_m, g_u = self.refinements(P, J)
+            JR = np.asarray(score(R), dtype=float)
+            JR = np.where(np.isfinite(JR), JR, np.inf)
+            lines = [(np.r_[FACTORS, g_m], np.r_[J[:n], JR[:FINE.size]]),
+                     (np.r_[FACTORS, g_u], np.r_[J[n:], JR[FINE.size:]])]
+        (gm, jm), (gu, ju) = (line_minimum(*line) for line in lines)
         m0, mu0 = self.pending[1] if self.pending is not None else self.ref
         f_c = float(P[0, self.im] * P[0, self.iu]) / FACTORS[0]  # the product the lines are centred on
         fm, fu = gm * f_c / (m0 * mu0), gu * f_c / (m0 * mu0)  # as factors of the split held

@@ -129,9 +129,9 @@ class MHESettings:
             process's (``--device``; ``cpu`` in library use). In ``run``/``evaluate``
             configs: ``mhe: {device: cuda}``.
         attribute_device: rollout backend of ``attribute``'s line decisions alone, as ``device``; None
-            (default): the windows'. A decision is one large batch (22 candidates × 32 clips, 3–6 s of a
-            CPU core, 0.2–0.25 s on an H100/H200 GPU) where a window is many small ones (faster on the
-            CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU.
+            (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips; the
+            first 3–6 s of a CPU core, 0.2–0.25 s on an H100/H200 GPU) where a window is many small ones
+            (faster on the CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU.
     """
 
     window: float = 1.0
@@ -379,7 +379,8 @@ class MovingHorizonEstimator:
                 # decision's end stays: its data may straddle a change the windows have not confirmed)
                 for retry in ((True, False) if reason != "period" else (False,)):
                     P = tr.candidates(self.mean)
-                    if tr.decide(t, reason, P, cost.evaluate(P).data, retry) is not None:
+                    if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
+                                 score=lambda R: cost.evaluate(R).data) is not None:
                         break
         self.mean, self.std = self.mean.copy(), self.std.copy()
         self.mean[tr.im], self.mean[tr.iu] = tr.ref
