@@ -49,8 +49,9 @@ windows"): from 3 s after the change, mass within 10 % and μ within 0.05 on 12 
 recordings on one seed, against 8 of 16 for the rules before (lines over ½–2×, a straddling or undecided
 span's reading averaged or split at once, the last decision alone); over four seeds on 12 of them, 31 of
 48 replays (4 to 10 of 12 per seed); with the lines compared at evaluated points (:data:`FINE`) 32 of
-48, and with a change's final decision by the lower line 37 of 48 (T4 16 of 16, T3 21 of 32). On one core a decision takes seconds: on the live clock it held 0 of 8; with the
-decisions on a GPU (``MHESettings.attribute_device``) 21 of 48 (before :data:`FINE`).
+48, and with a change's final decision by the lower line 37 of 48 (T4 16 of 16, T3 21 of 32). On one
+core a decision takes seconds: on the live clock it held 0 of 8; with the decisions on a GPU
+(``MHESettings.attribute_device``) 21 of 48 (the rules before :data:`FINE`).
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
