@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import FACTORS, FINE, QUIET, RETRY, SPAN, SplitTracker, line_minimum
+from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, QUIET, RETRY, SPAN, SplitTracker,
+                                            line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -172,6 +173,30 @@ def test_a_change_still_short_of_the_decisive_gap_after_a_whole_span_goes_to_the
     d = tr.decide(12.0, "change", P, J)
     assert d.changed == "box_mass" and tr.active == "box_mass" and tr.pending is None
     assert tr.ref[0] == pytest.approx(6.0, rel=0.03) and tr.ref[1] == 0.5
+
+
+def test_locate_places_the_change_where_the_clips_start_to_prefer_a_line_candidate():
+    held = np.full(20, 10.0)
+    per_clip = np.full((3, 20), 11.0)
+    per_clip[1, :8], per_clip[1, 8:] = 12.0, 7.0  # one candidate explains the clips from the 9th on
+    assert locate(per_clip, held) == 8
+    per_clip[1, :18], per_clip[1, 18:] = 12.0, 7.0  # a change in the last two clips: LOCATE_MIN kept after it
+    assert locate(per_clip, held) == 20 - LOCATE_MIN
+    # nothing better than the held split anywhere: as late as allowed (``relocate`` never moves a change later)
+    assert locate(np.full((3, 20), 11.0), held) == 20 - LOCATE_MIN
+
+
+def test_a_detected_change_is_sought_in_the_data_before_it_showed_then_decided_from_where_it_lies():
+    tr = tracker()
+    tr.open(12.0, 0.5)
+    assert tr.search_from(12.0, "provisional") == pytest.approx(12.0 - BACK)
+    tr.floor = 11.0  # the data of the reference's last change start there: no search before it
+    assert tr.search_from(12.0, "provisional") == 11.0
+    assert tr.search_from(12.0, "period") == 12.0
+    tr.relocate(11.2)
+    assert tr.pending[0] == 11.2 and tr.seen == pytest.approx(0.5 + 0.8) and tr.located
+    assert tr.search_from(11.2, "change") == 11.2  # located once: later decisions read from there
+    assert tr.held(np.zeros(2)).tolist() == [[4.0, 0.5]]
 
 
 def test_a_change_s_decisions_add_up_so_a_longer_span_does_not_flip_a_decisive_shorter_one():

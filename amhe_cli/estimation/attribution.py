@@ -36,10 +36,12 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
 
 * **the windows** still solve eq. (4), but their product ``m·μ`` only *detects* a change early (a
   one-coordinate :class:`~amhe_cli.estimation.fusion.WindowFusion`: gate confirmed by a window sharing no
-  data, or CUSUM): a change is decided provisionally on the data since it first showed, as soon as it is
-  confirmed, with the lines held at the reference before it, and finally once :data:`SPAN` seconds of data
-  after it are in; a change's decisions add their lines' costs up (each scores its own clips of the data
-  since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
+  data, or CUSUM): a change is decided provisionally as soon as it is confirmed, with the lines held at the
+  reference before it, and finally once :data:`SPAN` seconds of data after it are in. The windows show it a
+  second or two late, so its first decision seeks it in the :data:`BACK` seconds before (:func:`locate`,
+  over the clips' own costs) and every decision of it scores clips drawn afresh from where it lies; a
+  change's decisions add their lines' costs up (each scores its own clips of the data since it), so a
+  longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
   seconds after a change moved the reference the windows open no new one (they are still following it).
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
 
@@ -49,9 +51,9 @@ windows"): from 3 s after the change, mass within 10 % and μ within 0.05 on 12 
 recordings on one seed, against 8 of 16 for the rules before (lines over ½–2×, a straddling or undecided
 span's reading averaged or split at once, the last decision alone); over four seeds on 12 of them, 31 of
 48 replays (4 to 10 of 12 per seed); with the lines compared at evaluated points (:data:`FINE`) 32 of
-48, and with a change's final decision by the lower line 37 of 48 (T4 16 of 16, T3 21 of 32). On one
-core a decision takes seconds: on the live clock it held 0 of 8; with the decisions on a GPU
-(``MHESettings.attribute_device``) 21 of 48 (the rules before :data:`FINE`).
+48, with a change's final decision by the lower line 37 of 48 (T4 16 of 16, T3 21 of 32), and with the
+change located 43 of 48 (T4 16 of 16, T3 27 of 32). On one core a decision takes seconds: on the live clock it held 0 of 8; with the
+decisions on a GPU (``MHESettings.attribute_device``) 21 of 48 (the rules before :data:`FINE`).
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
@@ -106,6 +108,15 @@ RETRY = 0.5
 #: friction was attributed, decided on 0.5 s of data, moved the held mass +22 %). Periodic decisions still
 #: read the force meanwhile.
 QUIET = SPAN
+#: Seconds of data before a detected change (the end of the first window that showed it) searched for the
+#: change itself (:func:`locate`): the windows chain their estimates, so the first that shows a change ends a
+#: second or two after it, and the data between were lost to the decision (traced on a noisy T3 recording:
+#: the switch at 10.0 s decided on data from 12.0 s, half of it the box at rest; located, at 10.0 s).
+BACK = SPAN
+#: Clips a decision that locates its change draws (over :data:`BACK` seconds more data than :data:`CLIPS`).
+LOCATE_CLIPS = 48
+#: Clips at least that a located change keeps after it.
+LOCATE_MIN = 8
 #: Names of the two parameters whose split is attributed.
 NAMES = ("box_mass", "box_friction")
 
@@ -164,6 +175,22 @@ def line_minimum(factors: np.ndarray, J: np.ndarray) -> tuple[float, float]:
     return float(np.exp(xm)), float(J[k])
 
 
+def locate(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -> int:
+    """First clip after a change: the single change point the clips' costs explain best.
+
+    ``per_clip`` (B, N_c) is the data cost of each line candidate on each clip, ``held`` (N_c,) that of the
+    split before the change, the clips in time order. The index returned maximises
+    ``max_k Σ_{i ≥ j} (held_i − per_clip[k, i])`` (a likelihood-ratio change point) over ``j`` in
+    ``[0, N_c − keep_min]``. Diverged rollouts count as the largest finite gain seen."""
+    d = np.asarray(held, dtype=float)[None, :] - np.asarray(per_clip, dtype=float)
+    finite = np.isfinite(d)
+    bound = float(np.abs(d[finite]).max()) if finite.any() else 0.0
+    d = np.clip(np.where(finite, d, bound), -bound, bound)
+    gain = np.cumsum(d[:, ::-1], axis=1)[:, ::-1].max(axis=0)
+    last = max(gain.size - max(int(keep_min), 1), 0)
+    return int(np.argmax(gain[:last + 1]))
+
+
 class SplitTracker:
     """The reported mass and friction: a reference moved by line decisions, changes detected by the
     windows' product (module doc).
@@ -201,6 +228,8 @@ class SplitTracker:
         self.product = WindowFusion(np.array([f0]), np.array([f0 * np.hypot(rm, ru)]),
                                     np.array([f0 * np.hypot(*rel(noise0))]), np.array([f0]), floor, window)
         self.pending: tuple[float, tuple[float, float]] | None = None
+        self.located = False  # whether the pending change's time came from :func:`locate`
+        self.floor = -np.inf  # start [s] of the data of the reference's last change: no search before it
         # ``seen`` [s] from which the pending change's next provisional decision is due: inf once one attributed it
         self.retry_at = 0.0
         self.evidence = np.zeros(2)  # the pending change's lines' lowest costs, summed over its decisions
@@ -239,6 +268,27 @@ class SplitTracker:
         if self.since is not None and self.seen >= PERIOD - 1e-9:
             return self.since, "period"
         return None
+
+    def search_from(self, since: float, reason: str) -> float:
+        """Start [s] of the data a decision due from ``since`` draws: :data:`BACK` seconds earlier for a pending
+        change not yet located, not before the reference's last change; else ``since``."""
+        if reason == "period" or self.pending is None or self.located:
+            return since
+        return max(since - BACK, self.floor, 0.0) if since > self.floor else since
+
+    def relocate(self, t: float) -> None:
+        """Place the pending change at ``t`` [s] (no later than where it showed); the data since count as seen."""
+        since, held = self.pending
+        if t < since:
+            self.seen += since - t
+            self.pending = (float(t), held)
+        self.located = True
+
+    def held(self, base: np.ndarray) -> np.ndarray:
+        """(1, d) ``base`` with the split before the pending change (or the reference)."""
+        P = np.asarray(base, dtype=float)[None].copy()
+        P[0, self.im], P[0, self.iu] = self.pending[1] if self.pending is not None else self.ref
+        return P
 
     def candidates(self, base: np.ndarray) -> np.ndarray:
         """(2·len(FACTORS), d) candidates: ``base`` with the mass line's points, then the friction line's.
@@ -320,11 +370,11 @@ class SplitTracker:
             self.ref = self.split(m0 * mu0 * float(np.exp(np.log(better) / self.averaged)), (m0, mu0))
         elif changed is not None:
             self.ref = (m0 * fm, mu0) if changed == "box_mass" else (m0, mu0 * fu)
-            self.active, self.averaged, self.quiet_until = changed, 1, float(t) + QUIET
+            self.active, self.averaged, self.quiet_until, self.floor = changed, 1, float(t) + QUIET, since
         elif reason == "change":
             # the lines tie after a whole span; the friction force does not: the better line's, split as before
             self.ref = self.split(m0 * mu0 * better, (m0, mu0))
-            self.averaged, self.quiet_until = 1, float(t) + QUIET
+            self.averaged, self.quiet_until, self.floor = 1, float(t) + QUIET, since
         else:
             # the force moved and the span cannot tell which: a periodic span straddles the change, a
             # provisional one holds too little after it. Nothing moves; the change is decided on the data
@@ -349,7 +399,7 @@ class SplitTracker:
     def open(self, since: float, seen: float) -> None:
         """A change is pending from ``since`` [s], with ``seen`` seconds of data after it in: decided on the
         data after it, the lines holding the split before it."""
-        self.pending, self.retry_at, self.seen = (since, self.ref), 0.0, seen
+        self.pending, self.retry_at, self.seen, self.located = (since, self.ref), 0.0, seen, False
         self.evidence = np.zeros(2)  # the lines' lowest costs summed over the change's decisions
 
     def _settle(self, reason: str) -> None:

@@ -32,7 +32,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.attribution import CLIPS as ATTRIBUTION_CLIPS, LOOKBACK, NAMES as SPLIT_NAMES, SplitTracker
+from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, LOCATE_CLIPS, LOOKBACK, NAMES as SPLIT_NAMES,
+                                             SplitTracker, locate)
 from amhe_cli.estimation.clips import rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
@@ -365,14 +366,17 @@ class MovingHorizonEstimator:
         due = tr.due()
         if due is not None:
             since, reason = due
-            _, horizon, _ = clip_plan(traj)  # of identify's length: what change_attribution measured
-            try:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
-                    clips = sample_clips(traj, self.scene, ATTRIBUTION_CLIPS, horizon, self.rng,
-                                         (since, float(traj.t[stop - 1])), self.settings.min_speed, rest_travel(traj))
-            except AmheError:
-                clips = None  # not yet a clip's worth of data: the next update tries again
+            start = tr.search_from(since, reason)
+            if start < since:
+                # the change sought in the data before it showed (:func:`locate`), then decided on clips drawn
+                # afresh after it: the clips that placed it favour a change, whichever there was
+                clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS)
+                if clips is not None:
+                    C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(self.mean),
+                                                                        tr.held(self.mean)])).per_clip
+                    tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
+                    since = tr.pending[0]
+            clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS)
             if clips is not None:
                 cost = self._decision_cost(clips)
                 # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
@@ -385,6 +389,18 @@ class MovingHorizonEstimator:
         self.mean, self.std = self.mean.copy(), self.std.copy()
         self.mean[tr.im], self.mean[tr.iu] = tr.ref
         self.std[tr.im], self.std[tr.iu] = tr.std()
+
+    def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int):
+        """``n`` clips drawn as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, or
+        None where not a clip's worth is in yet (the next update tries again)."""
+        _, horizon, _ = clip_plan(traj)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
+                return sample_clips(traj, self.scene, n, horizon, self.rng, (since, float(traj.t[stop - 1])),
+                                    self.settings.min_speed, rest_travel(traj))
+        except AmheError:
+            return None
 
     def _decision_cost(self, clips) -> RolloutCost:
         """The cost a line decision scores ``clips`` with: the windows' own, or with ``attribute_device`` one
