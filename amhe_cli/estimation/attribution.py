@@ -52,8 +52,9 @@ recordings on one seed, against 8 of 16 for the rules before (lines over ½–2�
 span's reading averaged or split at once, the last decision alone); over four seeds on 12 of them, 31 of
 48 replays (4 to 10 of 12 per seed); with the lines compared at evaluated points (:data:`FINE`) 32 of
 48, with a change's final decision by the lower line 37 of 48 (T4 16 of 16, T3 21 of 32), and with the
-change located 43 of 48 (T4 16 of 16, T3 27 of 32). On one core a decision takes seconds: on the live clock it held 0 of 8; with the
-decisions on a GPU (``MHESettings.attribute_device``) 21 of 48 (the rules before :data:`FINE`).
+change located 43 of 48 (T4 16 of 16, T3 27 of 32). On one core a decision takes seconds: on the live
+clock it held 0 of 8; with the decisions on a GPU (``MHESettings.attribute_device``) 21 of 48 (the rules
+before :data:`FINE`).
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts

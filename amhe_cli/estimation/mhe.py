@@ -130,8 +130,9 @@ class MHESettings:
             process's (``--device``; ``cpu`` in library use). In ``run``/``evaluate``
             configs: ``mhe: {device: cuda}``.
         attribute_device: rollout backend of ``attribute``'s line decisions alone, as ``device``; None
-            (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips; the
-            first 3–6 s of a CPU core, 0.2–0.25 s on an H100/H200 GPU) where a window is many small ones
+            (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips, and
+            a change's first one 23 × 48 before them to locate it; the first 3–6 s of a CPU core, 0.2–0.25 s
+            on an H100/H200 GPU) where a window is many small ones
             (faster on the CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU.
     """
 
