@@ -275,7 +275,7 @@ class SplitTracker:
         change not yet located, not before the reference's last change; else ``since``."""
         if reason == "period" or self.pending is None or self.located:
             return since
-        return max(since - BACK, self.floor, 0.0) if since > self.floor else since
+        return min(since, max(since - BACK, self.floor, 0.0))
 
     def relocate(self, t: float) -> None:
         """Place the pending change at ``t`` [s] (no later than where it showed); the data since count as seen."""
