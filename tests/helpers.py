@@ -1,4 +1,4 @@
-"""Helpers the test modules share: the CLI run in-process and the one-line error check."""
+"""Helpers the test modules share: the CLI run in-process, the one-line error check, a patient run config."""
 
 from __future__ import annotations
 
@@ -25,3 +25,13 @@ def one_line_error(result, *words) -> str:
     for w in words:
         assert w in lines[0], lines[0]
     return lines[0]
+
+
+def patient(tmp_path) -> list[str]:
+    """``--config`` args for a run whose test is not the state watchdog: a 0.5 s ``state_timeout``, so a
+    busy machine that holds the emulator up past the 40 ms default (CI saw 70 ms gaps, the emulator at
+    SCHED_FIFO) does not end the run before it can show what the test checks. The watchdog itself is
+    tested at its default (``test_lost_or_corrupt_state_ends_in_damping_within_50_ms``)."""
+    cfg = tmp_path / "patient.yaml"
+    cfg.write_text("safety:\n  state_timeout: 0.5\n")
+    return ["--config", str(cfg)]

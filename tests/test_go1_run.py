@@ -22,6 +22,7 @@ import pytest
 from amhe_cli.io.reader import read_float_arrays, read_log
 from amhe_cli.model.scene import STAND_JOINTS
 from amhe_cli.plants.go1.safety import SafetySettings
+from helpers import patient
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 SERVO, DAMPING = 0x0A, 0x00
@@ -200,7 +201,7 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
 def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
     # As above: only a run that the emulator's own stall ended before the freeze is tried again.
     for emu, where in stall_retries(emulator, tmp_path, "--fault", "mocap-freeze@4.5"):
-        proc, out = run_client(emu, where, "--arm", "--duration", "5", "-q")
+        proc, out = run_client(emu, where, "--arm", "--duration", "5", "-q", *patient(where))
         emu.stop()
         if "no valid robot state" not in proc.stderr:
             break
@@ -230,7 +231,7 @@ def test_ctrl_c_damps_and_keeps_the_recording(emulator, tmp_path):
         out = where / "go1.mcap"
         proc = subprocess.Popen(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode",
                                         "baseline", "--threads", "1", "--out", str(out), "--arm", "--duration", "20",
-                                        "-q"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                                        "-q", *patient(where)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if wait_for_servo(emu, 4.0, proc):  # past the start-up and the 2 s ramp: the planner has run for 2 s
             break
         _, err = proc.communicate(timeout=30)
@@ -310,7 +311,7 @@ def test_late_motion_capture_is_measured_against_the_imu_and_said(emulator, tmp_
     t = 5 s), says it once, and plans for that robot from then on (the end-of-run check, against the robot
     as read, then has nothing to add)."""
     for emu, where in stall_retries(emulator, tmp_path, "--pose-latency", "0.025", "--motor-strength", "0.85"):
-        proc, out = run_client(emu, where, "--arm", "--duration", "8")
+        proc, out = run_client(emu, where, "--arm", "--duration", "8", *patient(where))
         emu.stop()
         if "no valid robot state" not in proc.stderr:
             break

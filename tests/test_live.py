@@ -19,6 +19,7 @@ pytest.importorskip("foxglove")
 pytest.importorskip("websockets")
 
 from foxglove_ws import watch  # noqa: E402
+from helpers import patient  # noqa: E402
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 LOG = Path(__file__).resolve().parents[1] / "examples" / "logs" / "probe_m2.5_mu0.30.mcap"
@@ -227,7 +228,7 @@ def _emulated_live_run(where):
     out = where / "go1.mcap"
     run, url = start(["run", "--task", "t1", "--target", "go1", "--robot", f"127.0.0.1:{port}", "--local-port", "0",
                       "--mocap", f"udp:127.0.0.1:{pose}", "--mode", "baseline", "--threads", "1", "--arm",
-                      "--duration", "8", "--out", out, "--live", f"127.0.0.1:{p_run}", "-q"], where)
+                      "--duration", "8", "--out", out, "--live", f"127.0.0.1:{p_run}", "-q", *patient(where)], where)
     try:
         channels, got = watch(url, timeout=90)  # until the run ends and its server goes
     finally:
