@@ -233,6 +233,11 @@ def test_a_live_clock_replay_defers_what_run_would_and_counts_it():
 
     class Slow:
         settings = MHESettings(window=1.0, every=0.5)
+        warmed = 0
+
+        def warm(self):  # the live clock loads a decisions' backend before it starts
+            self.warmed += 1
+            return 0.0
 
         def update(self, traj, t):
             return Update(t=t, mean=np.zeros(1), std=np.ones(1), cost=0.0, iterations=1, compute_time=1.2,
@@ -242,7 +247,8 @@ def test_a_live_clock_replay_defers_what_run_would_and_counts_it():
     fast = replay(traj, Slow())
     assert len(fast.updates) == 19 and fast.deferred == 0  # 1.0, 1.5, …, 10.0
     for duty, every_nth in ((1.0, 3), (0.5, 5)):  # busy 1.2 s: the next start 1.5 s on; resting too: 2.5 s
-        live = replay(traj, Slow(), realtime=True, duty=duty)
+        live = replay(traj, slow := Slow(), realtime=True, duty=duty)
+        assert slow.warmed == 1
         assert [u.t for u in live.updates] == pytest.approx(np.arange(1.0, 10.0 + 1e-9, 0.5 * every_nth))
         assert live.deferred == 19 - len(live.updates)
         np.testing.assert_allclose(live.lags, 1.2)

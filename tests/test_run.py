@@ -1025,6 +1025,34 @@ def test_mhe_fill_sizes_updates_to_the_core_share_the_run_gives_it(monkeypatch, 
         assert float(took[0].split()[5]) > 0 and "of the 0.25 s between them" in took[0]
 
 
+def test_the_line_decisions_backend_loads_before_the_wall_clock_loop_not_at_the_first_decision(monkeypatch):
+    """``mhe: {attribute_device}`` on the wall clock: the decisions' own backend rolls out once before the
+    first cycle (on ``cuda`` that loads MuJoCo Warp's kernels, which at the first decision held the estimator
+    for 5.9 s mid-run), and the run's log says so; lock-step, and a run without such a backend, do not."""
+    from amhe_cli.model.params import ParameterSpace
+    from amhe_cli.model.scene import Scene, SceneConfig
+    calls = []
+    real = MovingHorizonEstimator.warm
+    monkeypatch.setattr(MovingHorizonEstimator, "warm", lambda self, *a: (calls.append(self), real(self, *a))[1])
+    task = get_task("t1", duration=0.3)
+    said = {}
+    for realtime, device in ((True, "cpu"), (False, "cpu"), (True, None)):
+        mhe = MHESettings(window=0.5, every=0.25, max_steps=40, attribute=True, attribute_device=device)
+        r = run_task(task, belief(5.0, 0.3), small_settings("adaptive", mhe=mhe, realtime=realtime))
+        said[realtime, device] = [m for m in r.messages if m.startswith("the MHE's line decisions roll out on")]
+    assert len(calls) == 2  # the wall clock's runs, before any update
+    assert len(said[True, "cpu"]) == 1 and "on cpu (loaded in " in said[True, "cpu"][0]
+    assert said[False, "cpu"] == [] and said[True, None] == []
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 4.0, "box_friction": 0.5})
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, attribute_device="cpu")) as m:
+        rolled = []
+        monkeypatch.setattr(m._decide_pool, "rollout_candidates",
+                            lambda *a: rolled.append(a) or type(m._decide_pool).rollout_candidates(m._decide_pool, *a))
+        assert real(m) > 0 and len(rolled) == 1  # one candidate, one clip, on the decisions' pool alone
+        assert rolled[0][1].shape == (1, 2) and rolled[0][3].shape == (1, 10, scene.model.nu)
+
+
 def test_mhe_shadow_needs_the_adaptive_mode():
     with pytest.raises(AmheError, match="mhe_shadow .* needs mode adaptive, not baseline"):
         run_settings("t1", "baseline", {"mhe_shadow": True})

@@ -553,6 +553,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if clocked:  # the robot walks on while an import runs: what the MHE's windows need loads now
                 preload_smoothing()
                 note(describe_split(s, clocked))
+                loaded = estimator.mhe.warm()  # and its line decisions' backend, not at the first decision
+                if loaded:
+                    note(f"the MHE's line decisions roll out on {s.mhe.attribute_device} (loaded in {loaded:.1f} s)")
         read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
         if read_on:
             model_limit = torque_limit(plant.scene.model)  # the model's own, whatever the planner models

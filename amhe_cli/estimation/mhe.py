@@ -44,7 +44,7 @@ from amhe_cli.model.device import make_backend
 from amhe_cli.model.rollout import RolloutPool
 from amhe_cli.estimation.sampling import gaussian_step
 from amhe_cli.estimation.uncertainty import sensing_friction_std
-from amhe_cli.model.scene import Scene
+from amhe_cli.model.scene import STAND_JOINTS, Scene
 from amhe_cli.io.smoothing import velocity_noise
 from amhe_cli.io.trajectory import Trajectory
 
@@ -329,6 +329,29 @@ class MovingHorizonEstimator:
         """Seconds of data before ``t`` an :meth:`update` reads: the window, or with ``settings.attribute``
         the span its line decisions score (:data:`~amhe_cli.estimation.attribution.LOOKBACK`)."""
         return max(self.settings.window, LOOKBACK if self.tracker is not None else 0.0)
+
+    def warm(self, steps: int = 10) -> float:
+        """Load the line decisions' own backend now (``attribute_device``), not at the first decision.
+
+        On ``cuda`` the first rollout loads MuJoCo Warp's kernels (seconds from Warp's cache, minutes the first
+        time). Left to a run's first decision, that load held the estimator thread mid-run: on an emulated T3
+        (H200) the first decision took 5.9 s, 4.8 s of it the kernels, and no window ran for 6.5 s, across the
+        mass switch, which the windows then never told apart from noise. One candidate (the current mean) is
+        rolled out ``steps`` steps from the robot standing beside the box, its results dropped.
+
+        Returns:
+            wall time it took [s]; 0.0 without a backend of the decisions' own (they roll out on the
+            windows' pool, already loaded).
+        """
+        if self._decide_pool is None:
+            return 0.0
+        t0 = time.perf_counter()
+        scene = self.scene
+        x0 = scene.full_state(*scene.standing_state())
+        ctrl = np.tile(STAND_JOINTS, (1, steps, 1))
+        self._decide_pool.rollout_candidates(self.space, self.space.project(self.mean[None])[0], x0, ctrl,
+                                             np.array([steps]))
+        return time.perf_counter() - t0
 
     def edit_models(self, edit) -> None:
         """Apply ``edit(model)`` (in place; it sets values) to the models the next updates roll out, on either

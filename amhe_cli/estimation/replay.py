@@ -88,6 +88,7 @@ def replay(traj: Trajectory, mhe: MovingHorizonEstimator, realtime: bool = False
     s = mhe.settings
     if realtime:
         mhe.duty = duty  # what MHESettings.fill sizes an update to, as run's core split does
+        mhe.warm()  # the decisions' own backend loads before the clock starts, as run's does
     t_end = float(traj.t[-1])
     due = float(traj.t[0]) + s.window
     free_at, last = -np.inf, 0.0  # live clock: when the last update finished, what it took [s]
