@@ -246,6 +246,25 @@ def test_a_span_that_straddles_a_change_opens_one_from_its_middle_and_moves_noth
     assert tr.pending == (9.0, (4.0, 0.5)) and tr.seen == pytest.approx(1.0) and tr.due() is None
 
 
+def test_a_periodic_attribution_opens_the_change_whose_final_decision_on_the_data_after_it_may_correct_it():
+    """A periodic span over a moved force may straddle the change (an emulated T3 run's span over its switch
+    read a friction change): its decisive line is attributed at once, and the change opened from the span's
+    middle; its final decision, a span of data after it, goes by the lower line from the split held before."""
+    tr = tracker()
+    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(10.0, "period", P, cost(P, 4.0, 0.75))  # the straddling span reads the friction
+    assert d.changed == "box_friction" and tr.ref[0] == 4.0 and tr.ref[1] == pytest.approx(0.75, rel=0.02)
+    assert tr.pending == (9.0, (4.0, 0.5)) and tr.seen == pytest.approx(1.0)
+    assert tr.due() is None  # no provisional retries: it was attributed; the final comes a span after it
+    tr.seen = SPAN
+    assert tr.due() == (9.0, "change")
+    P = tr.candidates(np.zeros(2))
+    assert np.allclose(P[FACTORS.size:, 0], 4.0)  # the friction line holds the mass before the change
+    d = tr.decide(11.0, "change", P, cost(P, 6.0, 0.5))  # the data after it: the mass moved
+    assert d.changed == "box_mass" and tr.ref == pytest.approx((6.0, 0.5), rel=0.02) and tr.pending is None
+
+
 @pytest.mark.parametrize("reason", ["period", "change"])
 def test_a_decisive_line_without_a_change_of_the_friction_force_is_averaged_not_attributed(reason):
     tr = tracker()

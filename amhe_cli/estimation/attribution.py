@@ -24,7 +24,10 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
     relative variances: the split nearest the prior with that product). One span's reading scatters by
     ~10 %;
   - where the force moved and one line's cost is lower by :data:`DECISIVE_GAP` of the higher, that
-    parameter moved: it takes its line's minimum, the other is held (an *attribution*);
+    parameter moved: it takes its line's minimum, the other is held (an *attribution*); a periodic span's
+    attribution also opens the change from the span's middle, since its data may straddle it (an emulated
+    T3 run's span over its switch read a friction change), so the change's final decision, on the data
+    after it, confirms or corrects it;
   - where the force moved and neither line is decisive, nothing moves yet: a periodic span straddles the
     change (it is then placed at the span's middle and decided on the data after it), a provisional one
     holds too little after it (tried again every :data:`RETRY` seconds of new data);
@@ -348,6 +351,7 @@ class SplitTracker:
         fm, fu = gm * f_c / (m0 * mu0), gu * f_c / (m0 * mu0)  # as factors of the split held
         since = self.pending[0] if self.pending is not None else self.since
         changed, wait = None, False  # wait: nothing decided yet, the pending change tried again on more data
+        settle = reason  # how the decision settles (_settle): a periodic attribution as a provisional one
         cost = {"box_mass": float(jm), "box_friction": float(ju)}
         if not FACTORS[0] < (gu if ju < jm else gm) < FACTORS[-1]:
             # the better line's minimum at its end, re-centred or not: the data do not place it (a span that
@@ -370,6 +374,14 @@ class SplitTracker:
             self.averaged = min(self.averaged + 1, AVERAGE)
             self.ref = self.split(m0 * mu0 * float(np.exp(np.log(better) / self.averaged)), (m0, mu0))
         elif changed is not None:
+            if reason == "period":
+                # a periodic span over a moved force may straddle the change, and its lines then misread it (an
+                # emulated T3 run's recording: the span over its switch gave it to the friction): attributed now,
+                # and opened from the span's middle, so the change's final decision, on the data after it (located
+                # first), confirms or corrects this one against the split held before
+                start = 0.5 * (since + self.last)
+                self.open(start, self.last - start)
+                settle = "provisional"
             self.ref = (m0 * fm, mu0) if changed == "box_mass" else (m0, mu0 * fu)
             self.active, self.averaged, self.quiet_until, self.floor = changed, 1, float(t) + QUIET, since
         elif reason == "change":
@@ -384,16 +396,17 @@ class SplitTracker:
             if reason == "period":
                 start = 0.5 * (since + self.last)
                 self.open(start, self.last - start)
-        return self._record(Decision(t, since, reason, changed, *self.ref, cost), wait)
+        return self._record(Decision(t, since, reason, changed, *self.ref, cost), wait, settle)
 
-    def _record(self, d: Decision, wait: bool) -> Decision:
+    def _record(self, d: Decision, wait: bool, settle: str | None = None) -> Decision:
         """Keep the decision ``d``; then, with ``wait``, try the pending change again after :data:`RETRY` s
-        of data, else settle (:meth:`_settle`). The product's fusion restarts at the reference either way."""
+        of data, else settle (:meth:`_settle`) as ``settle`` says (default: as ``d.reason``; a periodic
+        attribution settles as a provisional one). The product's fusion restarts at the reference either way."""
         self.decisions.append(d)
         if wait:
             self.retry_at = self.seen + RETRY
         else:
-            self._settle(d.reason)
+            self._settle(settle or d.reason)
         self.product.restart(0, self.ref[0] * self.ref[1])
         return d
 
