@@ -379,8 +379,7 @@ class SplitTracker:
                 # emulated T3 run's recording: the span over its switch gave it to the friction): attributed now,
                 # and opened from the span's middle, so the change's final decision, on the data after it (located
                 # first), confirms or corrects this one against the split held before
-                start = 0.5 * (since + self.last)
-                self.open(start, self.last - start)
+                self._open_straddled(since)
                 settle = "provisional"
             self.ref = (m0 * fm, mu0) if changed == "box_mass" else (m0, mu0 * fu)
             self.active, self.averaged, self.quiet_until, self.floor = changed, 1, float(t) + QUIET, since
@@ -394,8 +393,7 @@ class SplitTracker:
             # after it, tried again as it comes in (a periodic span's change is placed at its middle)
             wait = True
             if reason == "period":
-                start = 0.5 * (since + self.last)
-                self.open(start, self.last - start)
+                self._open_straddled(since)
         return self._record(Decision(t, since, reason, changed, *self.ref, cost), wait, settle)
 
     def _record(self, d: Decision, wait: bool, settle: str | None = None) -> Decision:
@@ -409,6 +407,12 @@ class SplitTracker:
             self._settle(settle or d.reason)
         self.product.restart(0, self.ref[0] * self.ref[1])
         return d
+
+    def _open_straddled(self, since: float) -> None:
+        """A periodic span from ``since`` to the last window that may straddle a change: opened at its middle,
+        the span's second half counted as seen after it."""
+        start = 0.5 * (since + self.last)
+        self.open(start, self.last - start)
 
     def open(self, since: float, seen: float) -> None:
         """A change is pending from ``since`` [s], with ``seen`` seconds of data after it in: decided on the
