@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, QUIET, RETRY, SPAN, SplitTracker,
+from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RETRY, SPAN, SplitTracker,
                                             line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
@@ -275,6 +275,33 @@ def test_a_decisive_line_without_a_change_of_the_friction_force_is_averaged_not_
     d = tr.decide(10.0, reason, P, cost(P, 4.0 * 1.1, 0.5))  # the mass line lower, the force 10 % up
     assert d.changed is None and tr.active is None and tr.pending is None
     assert tr.ref[0] * tr.ref[1] == pytest.approx(2.0 * np.sqrt(1.1), rel=0.02)  # averaged with the prior
+
+
+def test_a_periodic_reading_averaged_in_keeps_the_windows_evidence_of_a_change_in_progress():
+    """Traced on an emulated T3 run (wall clock): a periodic decision fell due at the first window that showed
+    the switch and read the span before it (nothing changed). Restarting the windows' fusion there dropped that
+    window, so the change was confirmed a window later than the one sharing no data with it."""
+    tr = tracker()
+    rng = np.random.default_rng(5)
+    t = 0.5
+    while len(tr.decisions) < 2:  # the windows' noise learnt, two periodic readings of the unchanged box
+        step(tr, t, 4.0, 0.5, rng)
+        t += 0.5
+    while tr.seen < PERIOD - 0.5 - 1e-9:
+        step(tr, t, 4.0, 0.5, rng)
+        t += 0.5
+    n, restarts = len(tr.decisions), tr.product.restarts
+    first = t
+    tr.fuse(first, np.array([6.0, 0.5]))  # the mass switched: this window's product 1.5× (held by the gate)
+    assert tr.due()[1] == "period"
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(first, "period", P, cost(P, 4.0, 0.5))  # its span is before the switch: nothing changed
+    assert len(tr.decisions) == n + 1 and d.changed is None and tr.pending is None
+    assert tr.product.held[0] and tr.product.restarts == restarts  # the window that showed it is kept
+    tr.fuse(first + 0.5, np.array([6.0, 0.5]))  # overlaps the first: not yet a confirmation
+    assert tr.pending is None
+    tr.fuse(first + 1.0, np.array([6.0, 0.5]))  # shares no data with it: confirmed, opened from the first
+    assert tr.pending is not None and tr.pending[0] == pytest.approx(first)
 
 
 def test_periodic_decisions_are_averaged_so_one_span_s_scatter_does_not_move_the_report():

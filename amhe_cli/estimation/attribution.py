@@ -399,13 +399,20 @@ class SplitTracker:
     def _record(self, d: Decision, wait: bool, settle: str | None = None) -> Decision:
         """Keep the decision ``d``; then, with ``wait``, try the pending change again after :data:`RETRY` s
         of data, else settle (:meth:`_settle`) as ``settle`` says (default: as ``d.reason``; a periodic
-        attribution settles as a provisional one). The product's fusion restarts at the reference either way."""
+        attribution settles as a provisional one). The product's fusion restarts at the reference either way;
+        where the decision moved nothing but a reading averaged in and no change is pending, the windows held
+        beyond its gate stay, the evidence of a change in progress. Traced on an emulated T3 run (wall clock,
+        decisions on an H200): a periodic decision due at the first window that showed the switch (10.5 s)
+        dropped it, so the window at 12.0 s, sharing no data with it, did not confirm the change; the one at
+        13.0 s did. (Not restarting at all there, CUSUM sums included, opened spurious changes offline: T4
+        5 of 8 replays against 8.)"""
+        keep = d.changed is None and self.pending is None
         self.decisions.append(d)
         if wait:
             self.retry_at = self.seen + RETRY
         else:
             self._settle(settle or d.reason)
-        self.product.restart(0, self.ref[0] * self.ref[1])
+        self.product.restart(0, self.ref[0] * self.ref[1], keep_held=keep)
         return d
 
     def _open_straddled(self, since: float) -> None:

@@ -166,13 +166,15 @@ class WindowFusion:
         mad = np.median(np.abs(diffs), axis=0)
         return np.maximum((mad / 0.6745 / np.sqrt(2.0)) ** 2, self.r_floor)
 
-    def restart(self, i: int, value: float, variance: float | None = None) -> None:
+    def restart(self, i: int, value: float, variance: float | None = None, keep_held: bool = False) -> None:
         """Restart coordinate ``i`` at ``value`` with ``variance`` (None: one window's, :meth:`noise`), forgetting
-        what was held and the CUSUM sums: what a confirmed change does, and what an estimator that places the
-        value by other means (:mod:`~amhe_cli.estimation.attribution`) asks for."""
+        the CUSUM sums and what was held: what a confirmed change does, and what an estimator that places the
+        value by other means (:mod:`~amhe_cli.estimation.attribution`) asks for. With ``keep_held`` the windows
+        held beyond the gate stay, for a later one sharing no data with them to confirm."""
         self.x[i] = value
         self.P[i] = self.noise()[i] if variance is None else variance
-        self.held[i] = []
+        if not keep_held:
+            self.held[i] = []
         self.cusum_hi[i] = self.cusum_lo[i] = 0.0
 
     def update(self, t: float, y: np.ndarray) -> np.ndarray:
