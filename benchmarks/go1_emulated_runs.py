@@ -15,7 +15,10 @@ overruns and its longest gap between two state packets, so a watchdog trip on a 
 from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``holds`` the relay's
 soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
-``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s]),
+``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
+``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
+``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
+seconds after the change from which every estimate held both bounds, None where the last did not),
 then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -70,6 +73,10 @@ RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
 ROBOT_READ = re.compile(r"t=([0-9.]+) s: this robot is not the one the planner modelled: its own joint efforts read "
                         r"the servo at ([0-9.]+) × the commanded gains and the motors at ([0-9]+)%")
+#: The bounds the MHE is held to after a change: |mass error| as a share, |μ error| (issue #24).
+MASS_BOUND, MU_BOUND = 0.10, 0.05
+#: Each change the run's MHE attributed (``mhe: {attribute: true}``), from its run log: data time, decision, parameter, value.
+ATTRIBUTED = re.compile(r"t=([0-9.]+) s: MHE attributes the change \((\w+), data from [0-9.]+ s\) to (\w+): ([0-9.]+)")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
 SETTLE = 3.0
 
@@ -123,9 +130,16 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
             continue
         mass = est[idx, labels.index("box_mass")]
         mu = est[idx, labels.index("box_friction")]
-        out.append({"from": round(lo, 2), "to": round(min(b, run_end), 2),
-                    "mass_err_pct": round(float(np.max(np.abs(100 * (mass / tr["box_mass"] - 1)))), 1),
-                    "mu_err": round(float(np.max(np.abs(mu - tr["box_friction"]))), 3)})
+        row = {"from": round(lo, 2), "to": round(min(b, run_end), 2),
+               "mass_err_pct": round(float(np.max(np.abs(100 * (mass / tr["box_mass"] - 1)))), 1),
+               "mu_err": round(float(np.max(np.abs(mu - tr["box_friction"]))), 3)}
+        if i > 0:  # when it got there: seconds after the change from which every estimate holds both bounds
+            k = np.r_[np.where(t < a)[0][-1:], np.where((t >= a) & (t < b))[0]].astype(int)
+            bad = ((np.abs(est[k, labels.index("box_mass")] / tr["box_mass"] - 1) > MASS_BOUND)
+                   | (np.abs(est[k, labels.index("box_friction")] - tr["box_friction"]) > MU_BOUND))
+            row["within_after_s"] = (0.0 if not bad.any() else None if bad[-1]
+                                     else round(float(t[k[np.where(bad)[0][-1] + 1]] - a), 2))
+        out.append(row)
     return out
 
 
@@ -200,6 +214,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     res["recoveries_why"] = [[float(t), why] for t, why in RECOVERY.findall(log)]
     # each time the run read its robot unlike the planner's model and followed it: [t, servo share, limit share]
     res["robot_reads"] = [[float(t), float(sv), float(lim) / 100] for t, sv, lim in ROBOT_READ.findall(log)]
+    res["mhe_attributed"] = [[float(t), why, p, float(v)] for t, why, p, v in ATTRIBUTED.findall(log)]
+    res["mhe_failed"] = log.count("MHE update failed")
     m = DEFERRED.search(log)
     res["mhe_deferred"] = int(m.group(1)) if m else 0
     m = STEPS.search(log)
@@ -248,8 +264,11 @@ def table(rows: list[dict], tasks, modes) -> None:
                 got = [g[k] for g in ok if len(g) > k]
                 mass = np.array([g["mass_err_pct"] for g in got])
                 mu = np.array([g["mu_err"] for g in got])
-                segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 10))}/{len(got)} "
-                            f"/ {int(np.sum(mu <= 0.05))}/{len(got)}")
+                settled = [g.get("within_after_s") for g in got if "within_after_s" in g]
+                late = (f", within both after {np.median([x if x is not None else np.inf for x in settled]):.1f} s"
+                        f" (median; never in {sum(x is None for x in settled)})") if settled else ""
+                segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 100 * MASS_BOUND))}"
+                            f"/{len(got)} / {int(np.sum(mu <= MU_BOUND))}/{len(got)}{late}")
             print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "
                   f"{sum(r['fell'] for r in sel):5d} {sum(int(r.get('recoveries', 0)) for r in sel):5d} "
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
