@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from amhe_cli.control.maneuver import lunge_schedule
-from amhe_cli.control.robot_side import RobotSide, check_run, follow, read_robot, write_robot
+from amhe_cli.control.robot_side import (READ_JOINTS, READ_STD, RobotSide, check_run, follow, read_robot,
+                                         write_robot)
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
                                       sample_rest_clips)
@@ -173,6 +174,20 @@ def test_a_run_recorded_on_a_robot_unlike_its_plan_says_so():
     assert "1.00 × the commanded Kp where the planner modelled 0.85" in line and "plateaued" not in line
     model.joint_effort = None
     assert check_run(model, nominal, 55.0, MODEL_LIMIT) is None
+
+
+def test_a_read_whose_joints_disagree_on_the_servo_says_nothing():
+    """read_robot: one servo law drives every motor, so a fit whose well-posed joints disagree on its share
+    (interquartile range over READ_SPREAD) is no read of the robot; joints that agree, at 0.85, are one."""
+    kp = np.where(np.arange(12) % 2 == 0, 55.0, 0.85 * 55.0)  # half the joints' servo at 0.85
+    split = _lunge_log(kp=kp, kd=3.0, box_xy=(1.5, 0.0))
+    fit = fit_gains(split)
+    good = fit.ok & (fit.kp_std < READ_STD * np.abs(fit.kp))
+    assert good.sum() >= READ_JOINTS and np.ptp(fit.kp[good] / 55.0) > 0.1  # well posed, each joint right
+    assert read_robot(split, 55.0, MODEL_LIMIT) is None
+    assert read_robot(split, 55.0, MODEL_LIMIT, max_samples=400) is None
+    weak = _lunge_log(kp=0.85 * 55.0, kd=0.85 * 3.0, box_xy=(1.5, 0.0))
+    assert read_robot(weak, 55.0, MODEL_LIMIT, max_samples=400).servo == pytest.approx(0.85, rel=0.01)
 
 
 def test_a_read_of_the_robot_mid_run_gives_the_planner_that_robot():
