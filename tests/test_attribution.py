@@ -280,7 +280,7 @@ def test_a_decisive_line_without_a_change_of_the_friction_force_is_averaged_not_
 def test_a_periodic_reading_averaged_in_keeps_the_windows_evidence_of_a_change_in_progress():
     """Traced on an emulated T3 run (wall clock): a periodic decision fell due at the first window that showed
     the switch and read the span before it (nothing changed). Restarting the windows' fusion there dropped that
-    window, so the change was confirmed a window later than the one sharing no data with it."""
+    window, so the window sharing no data with it confirmed nothing."""
     tr = tracker()
     rng = np.random.default_rng(5)
     t = 0.5

@@ -406,9 +406,9 @@ class SplitTracker:
         where the decision moved nothing but a reading averaged in and no change is pending, the windows held
         beyond its gate stay, the evidence of a change in progress. Traced on an emulated T3 run (wall clock,
         decisions on an H200): a periodic decision due at the first window that showed the switch (10.5 s)
-        dropped it, so the window at 12.0 s, sharing no data with it, did not confirm the change; the one at
-        13.0 s did. (Not restarting at all there, CUSUM sums included, opened spurious changes offline: T4
-        5 of 8 replays against 8.)"""
+        dropped it, so the window at 12.0 s, sharing no data with it, did not confirm the change, and it was
+        opened only by the next periodic decision, at 13.0 s. (Not restarting at all there, CUSUM sums
+        included, opened spurious changes offline: T4 5 of 8 replays against 8.)"""
         keep = d.changed is None and self.pending is None
         self.decisions.append(d)
         if wait:
