@@ -265,7 +265,8 @@ def table(rows: list[dict], tasks, modes) -> None:
                 mass = np.array([g["mass_err_pct"] for g in got])
                 mu = np.array([g["mu_err"] for g in got])
                 settled = [g.get("within_after_s") for g in got if "within_after_s" in g]
-                late = (f", within both after {np.median([x if x is not None else np.inf for x in settled]):.1f} s"
+                mid = np.median([x if x is not None else np.inf for x in settled]) if settled else np.inf
+                late = (f", within both after {f'{mid:.1f} s' if np.isfinite(mid) else 'never'}"
                         f" (median; never in {sum(x is None for x in settled)})") if settled else ""
                 segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 100 * MASS_BOUND))}"
                             f"/{len(got)} / {int(np.sum(mu <= MU_BOUND))}/{len(got)}{late}")
