@@ -115,28 +115,32 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
         if k < len(changes):
             start = changes[k][0]
             truth[changes[k][1]] = changes[k][2]
+    mass_all, mu_all = est[:, labels.index("box_mass")], est[:, labels.index("box_friction")]
+
+    def in_force(lo: float, hi: float) -> np.ndarray:  # the estimates in force over [lo, hi): the last swap
+        # before it, and every later one
+        return np.r_[np.where(t < lo)[0][-1:], np.where((t >= lo) & (t < hi))[0]].astype(int)
+
     out = []
     for i, (a, b, tr) in enumerate(segments):
         if i == 0:  # before any change: the estimate in force when the world changes (or at the end)
             idx = np.where(t < min(b, run_end + 1))[0][-1:]
             lo = a
-        else:  # the estimates in force over [change + SETTLE, next change): the last swap before, every later one
+        else:  # over [change + SETTLE, next change)
             lo = a + SETTLE
             if lo >= min(b, run_end):
                 continue
-            before = np.where(t < lo)[0]
-            idx = np.r_[before[-1:], np.where((t >= lo) & (t < b))[0]].astype(int)
+            idx = in_force(lo, b)
         if not len(idx):
             continue
-        mass = est[idx, labels.index("box_mass")]
-        mu = est[idx, labels.index("box_friction")]
+        mass, mu = mass_all[idx], mu_all[idx]
         row = {"from": round(lo, 2), "to": round(min(b, run_end), 2),
                "mass_err_pct": round(float(np.max(np.abs(100 * (mass / tr["box_mass"] - 1)))), 1),
                "mu_err": round(float(np.max(np.abs(mu - tr["box_friction"]))), 3)}
         if i > 0:  # when it got there: seconds after the change from which every estimate holds both bounds
-            k = np.r_[np.where(t < a)[0][-1:], np.where((t >= a) & (t < b))[0]].astype(int)
-            bad = ((np.abs(est[k, labels.index("box_mass")] / tr["box_mass"] - 1) > MASS_BOUND)
-                   | (np.abs(est[k, labels.index("box_friction")] - tr["box_friction"]) > MU_BOUND))
+            k = in_force(a, b)
+            bad = ((np.abs(mass_all[k] / tr["box_mass"] - 1) > MASS_BOUND)
+                   | (np.abs(mu_all[k] - tr["box_friction"]) > MU_BOUND))
             row["within_after_s"] = (0.0 if not bad.any() else None if bad[-1]
                                      else round(float(t[k[np.where(bad)[0][-1] + 1]] - a), 2))
         out.append(row)

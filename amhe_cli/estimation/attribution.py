@@ -354,7 +354,7 @@ class SplitTracker:
         fm, fu = gm * f_c / (m0 * mu0), gu * f_c / (m0 * mu0)  # as factors of the split held
         since = self.pending[0] if self.pending is not None else self.since
         changed, wait = None, False  # wait: nothing decided yet, the pending change tried again on more data
-        settle = reason  # how the decision settles (_settle): a periodic attribution as a provisional one
+        settle = None  # how the decision settles (_settle), where not as its reason: a periodic attribution
         cost = {"box_mass": float(jm), "box_friction": float(ju)}
         if not FACTORS[0] < (gu if ju < jm else gm) < FACTORS[-1]:
             # the better line's minimum at its end, re-centred or not: the data do not place it (a span that
