@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RETRY, SPAN, SplitTracker,
-                                            line_minimum, locate)
+from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE, RETRY, SHIFT,
+                                            SPAN, SplitTracker, line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -182,20 +182,32 @@ def test_locate_places_the_change_where_the_clips_start_to_prefer_a_line_candida
     assert locate(per_clip, held) == 8
     per_clip[1, :18], per_clip[1, 18:] = 12.0, 7.0  # a change in the last two clips: LOCATE_MIN kept after it
     assert locate(per_clip, held) == 20 - LOCATE_MIN
-    # nothing better than the held split anywhere: as late as allowed (``relocate`` never moves a change later)
+    # nothing better than the held split anywhere: as late as allowed
     assert locate(np.full((3, 20), 11.0), held) == 20 - LOCATE_MIN
 
 
-def test_a_detected_change_is_sought_in_the_data_before_it_showed_then_decided_from_where_it_lies():
+def test_each_decision_of_a_change_seeks_it_again_and_a_change_moved_later_drops_its_earlier_evidence():
     tr = tracker()
+    tr.last = 12.0
     tr.open(12.0, 0.5)
-    assert tr.search_from(12.0, "provisional") == pytest.approx(12.0 - BACK)
+    assert tr.search_from("provisional") == pytest.approx(12.0 - BACK)
     tr.floor = 11.0  # the data of the reference's last change start there: no search before it
-    assert tr.search_from(12.0, "provisional") == 11.0
-    assert tr.search_from(12.0, "period") == 12.0
-    tr.relocate(11.2)
-    assert tr.pending[0] == 11.2 and tr.seen == pytest.approx(0.5 + 0.8) and tr.located
-    assert tr.search_from(11.2, "change") == 11.2  # located once: later decisions read from there
+    assert tr.search_from("provisional") == 11.0
+    assert tr.search_from("period") is None
+    assert tr.relocate(11.2) == "provisional"
+    assert tr.pending[0] == 11.2 and tr.seen == pytest.approx(0.5 + 0.8)
+    tr.evidence[:] = (100.0, 120.0)
+    tr.last, tr.seen = 13.0, 2.1
+    assert tr.search_from("change") == 11.0  # located again, from the same start
+    # the change lies later than placed (an early held window): not yet a span after it, and the decisions
+    # that scored data from before it no longer count
+    assert tr.relocate(11.9) == "provisional"
+    assert tr.seen == pytest.approx(1.4) and tr.evidence.tolist() == [0.0, 0.0]
+    tr.evidence[:] = (100.0, 120.0)
+    assert tr.relocate(11.3) == "change" and tr.evidence.tolist() == [100.0, 120.0]  # earlier: still after it
+    assert tr.relocate(11.3 + 0.8 * SHIFT) == "provisional" and tr.evidence.tolist() == [100.0, 120.0]  # jitter
+    tr.last = 12.0 + RELOCATE
+    assert tr.search_from("change") is None  # long after it showed: it stays where it lies
     assert tr.held(np.zeros(2)).tolist() == [[4.0, 0.5]]
 
 

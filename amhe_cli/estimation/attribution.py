@@ -41,8 +41,9 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   one-coordinate :class:`~amhe_cli.estimation.fusion.WindowFusion`: gate confirmed by a window sharing no
   data, or CUSUM): a change is decided provisionally as soon as it is confirmed, with the lines held at the
   reference before it, and finally once :data:`SPAN` seconds of data after it are in. The windows show it a
-  second or two late, so its first decision seeks it in the :data:`BACK` seconds before (:func:`locate`,
-  over the clips' own costs) and every decision of it scores clips drawn afresh from where it lies; a
+  second or two late, so each of its decisions for :data:`RELOCATE` seconds seeks it in the data from
+  :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and scores clips drawn afresh from
+  where it lies; a
   change's decisions add their lines' costs up (each scores its own clips of the data since it), so a
   longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
   seconds after a change moved the reference the windows open no new one (they are still following it).
@@ -122,6 +123,16 @@ QUIET = SPAN
 BACK = SPAN
 #: Clips a decision that locates its change draws (over :data:`BACK` seconds more data than :data:`CLIPS`).
 LOCATE_CLIPS = 48
+#: Seconds after a change showed during which each of its decisions locates it again, over the data from
+#: :data:`BACK` seconds before it showed, earlier or later than it was placed. Located once, at the update
+#: that opened it, a change sat 1.4 s before a noisy T3 recording's switch (with 0.5 s of data after the
+#: switch in), so its final decision came at the next update, over data mostly before the switch, and read
+#: no change; and a window held 1.7 s before a T4 step, confirmed by the step, placed the change there and
+#: gave the step to the mass (+114 %, docs/evaluation.md "Each decision of a change locates it again").
+RELOCATE = 2 * SPAN
+#: Seconds later a change may be placed again and keep its earlier decisions' summed costs: about a clip's
+#: length (0.1–0.2 s on a noisy log), the jitter of :func:`locate` between decisions (0.02–0.05 s traced).
+SHIFT = 0.25
 #: Clips at least that a located change keeps after it.
 LOCATE_MIN = 8
 #: Names of the two parameters whose split is attributed.
@@ -235,7 +246,7 @@ class SplitTracker:
         self.product = WindowFusion(np.array([f0]), np.array([f0 * np.hypot(rm, ru)]),
                                     np.array([f0 * np.hypot(*rel(noise0))]), np.array([f0]), floor, window)
         self.pending: tuple[float, tuple[float, float]] | None = None
-        self.located = False  # whether the pending change's time came from :func:`locate`
+        self.shown = 0.0  # time [s] the pending change showed (opened): its search reaches :data:`BACK` before
         self.floor = -np.inf  # start [s] of the data of the reference's last change: no search before it
         # ``seen`` [s] from which the pending change's next provisional decision is due: inf once one attributed it
         self.retry_at = 0.0
@@ -276,20 +287,25 @@ class SplitTracker:
             return self.since, "period"
         return None
 
-    def search_from(self, since: float, reason: str) -> float:
-        """Start [s] of the data a decision due from ``since`` draws: :data:`BACK` seconds earlier for a pending
-        change not yet located, not before the reference's last change; else ``since``."""
-        if reason == "period" or self.pending is None or self.located:
-            return since
-        return min(since, max(since - BACK, self.floor, 0.0))
+    def search_from(self, reason: str) -> float | None:
+        """Start [s] of the data in which a decision due for ``reason`` seeks its change (:func:`locate`):
+        :data:`BACK` seconds before the pending change showed, not before the reference's last change, for
+        :data:`RELOCATE` seconds after it showed; else None (nothing to seek)."""
+        if reason == "period" or self.pending is None or self.last is None or self.last - self.shown >= RELOCATE:
+            return None
+        return max(self.shown - BACK, self.floor, 0.0)
 
-    def relocate(self, t: float) -> None:
-        """Place the pending change at ``t`` [s] (no later than where it showed); the data since count as seen."""
+    def relocate(self, t: float) -> str:
+        """Place the pending change at ``t`` [s], earlier or later than before; the data since count as seen.
+        Moved later by more than :data:`SHIFT`, its earlier decisions scored data from before it: their summed
+        costs are dropped. Returns
+        the reason of its decision now: ``change`` where a span of data after it is in, else ``provisional``."""
         since, held = self.pending
-        if t < since:
-            self.seen += since - t
-            self.pending = (float(t), held)
-        self.located = True
+        self.seen = max(self.seen + since - float(t), 0.0)
+        if t > since + SHIFT:
+            self.evidence = np.zeros(2)
+        self.pending = (float(t), held)
+        return "change" if self.seen >= SPAN - 1e-9 else "provisional"
 
     def held(self, base: np.ndarray) -> np.ndarray:
         """(1, d) ``base`` with the split before the pending change (or the reference)."""
@@ -427,7 +443,7 @@ class SplitTracker:
     def open(self, since: float, seen: float) -> None:
         """A change is pending from ``since`` [s], with ``seen`` seconds of data after it in: decided on the
         data after it, the lines holding the split before it."""
-        self.pending, self.retry_at, self.seen, self.located = (since, self.ref), 0.0, seen, False
+        self.pending, self.retry_at, self.seen, self.shown = (since, self.ref), 0.0, seen, float(since)
         self.evidence = np.zeros(2)  # the lines' lowest costs summed over the change's decisions
 
     def _settle(self, reason: str) -> None:

@@ -390,15 +390,15 @@ class MovingHorizonEstimator:
         due = tr.due()
         if due is not None:
             since, reason = due
-            start = tr.search_from(since, reason)
-            if start < since:
-                # the change sought in the data before it showed (:func:`locate`), then decided on clips drawn
-                # afresh after it: the clips that placed it favour a change, whichever there was
+            start = tr.search_from(reason)
+            if start is not None:
+                # the change sought in the data from before it showed (:func:`locate`), then decided on clips
+                # drawn afresh after it: the clips that placed it favour a change, whichever there was
                 clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS)
                 if clips is not None:
                     C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(self.mean),
                                                                         tr.held(self.mean)])).per_clip
-                    tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
+                    reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
                     since = tr.pending[0]
             clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS)
             if clips is not None:
