@@ -168,6 +168,36 @@ def test_a_stall_that_the_queued_states_bridge_is_not_a_lost_link():
         relay.stop()
 
 
+class CorruptingLink(FakeLink):
+    """A robot whose packets, once told, all fail the link's checks (counted as the real link counts them)."""
+
+    def __init__(self):
+        super().__init__()
+        self.corrupt = False
+        self.bad_packets, self.last_error = 0, None
+
+    def recv(self, timeout=0.0):
+        if self.corrupt:
+            self.bad_packets += 1
+            self.last_error = "LowState packet CRC mismatch (corrupted packet)"
+            return None
+        return super().recv(timeout)
+
+
+def test_a_stream_of_invalid_packets_trips_the_watchdog_and_says_so_not_link_lost():
+    link = CorruptingLink()
+    relay = run_relay(link)
+    try:
+        assert relay.wait_ready(2.0)
+        link.corrupt = True
+        assert relay.failed.wait(1.0)
+        assert relay.reason.startswith("no valid robot state for ") and "link lost" not in relay.reason
+        assert "invalid packets meanwhile, the last: LowState packet CRC mismatch" in relay.reason
+    finally:
+        relay.stop()
+    assert link.sent[-1][1].mode.tolist() == [MODE_DAMPING] * 12
+
+
 def test_relay_damps_within_50_ms_of_the_last_state():
     link = FakeLink()
     relay = run_relay(link)
@@ -176,7 +206,7 @@ def test_relay_damps_within_50_ms_of_the_last_state():
         link.silent = True
         t_lost = time.monotonic()
         assert relay.failed.wait(1.0)
-        assert "no valid robot state" in relay.reason
+        assert "no valid robot state" in relay.reason and relay.reason.endswith("(link lost)")
         time.sleep(0.01)
         first_damp = next(t for t, m in link.modes(t_lost) if m == MODE_DAMPING)
         assert first_damp - t_lost <= 0.05

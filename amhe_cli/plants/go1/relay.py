@@ -130,6 +130,7 @@ class Relay:
         self.would_send: deque[tuple[float, np.ndarray]] = deque(maxlen=HISTORY)
         self.state: LowState | None = None
         self.state_time = -np.inf
+        self._bad_at_state = 0  # the link's invalid-packet count at the last valid state
         self.streaming = threading.Event()
         self.ready = threading.Event()
         self.failed = threading.Event()
@@ -229,6 +230,14 @@ class Relay:
                 self.messages.append(f"relay {self.phase} -> {phase}" + (f": {note}" if note else ""))
             self.phase = phase
 
+    def _silence(self, now: float) -> str:
+        """Why no valid state came since the last one, for the trip: packets that came and were rejected (the
+        link's count and last reason: a robot or a rig sending what it should not), or none at all (link lost)."""
+        bad = getattr(self.link, "bad_packets", 0) - self._bad_at_state
+        why = (f"{bad} invalid packet{'s' * (bad != 1)} meanwhile, the last: {getattr(self.link, 'last_error', '')}"
+               if bad > 0 else "link lost")
+        return f"no valid robot state for {1e3 * (now - self.state_time):.0f} ms ({why})"
+
     def _trip(self, reason: str) -> None:
         with self._lock:
             if self.reason is None:
@@ -290,6 +299,7 @@ class Relay:
             received = time.monotonic()
             if state is not None:
                 self.state, self.state_time = state, received
+                self._bad_at_state = getattr(self.link, "bad_packets", 0)
                 self.streaming.set()
                 if self.phase == "wait":
                     if self.dry_run:
@@ -305,7 +315,7 @@ class Relay:
                     except SafetyTrip as trip:
                         self._trip(str(trip))
             elif self.phase not in ("wait", "damp") and received - self.state_time > s.state_timeout:
-                self._trip(f"no valid robot state for {1e3 * (received - self.state_time):.0f} ms (link lost)")
+                self._trip(self._silence(received))
             with self._send_lock:  # damp() from another thread waits for this command, then wins
                 if self.phase in ("wait", "damp"):
                     cmd, q_sent, mode = damping, None, MODE_DAMPING
