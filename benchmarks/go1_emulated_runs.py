@@ -11,8 +11,8 @@ of its own (default 1 where the machine has one to spare: the robot's computer, 
 laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
-overruns and its longest gap between two state packets, so a watchdog trip on a gap the rig made is told
-from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``holds`` the relay's
+overruns, its longest gap between two state packets sent and the states its socket refused, so a watchdog
+trip on a gap the rig made is told from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``holds`` the relay's
 soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
@@ -65,6 +65,7 @@ from amhe_cli.io.reader import inspect_log, read_float_arrays
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
+EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
@@ -194,6 +195,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         m = EMULATOR_STATS.search(line)
         if m:  # the emulator's own timing: a state gap past the client's watchdog is the rig's, not the client's
             emulator = {"overruns": int(m.group(1)), "longest_state_gap_ms": float(m.group(2))}
+            refused = EMULATOR_REFUSED.search(line)
+            if refused:
+                emulator["refused_sends"] = int(refused.group(1))
     try:
         res = json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, json.JSONDecodeError, AttributeError):

@@ -236,6 +236,49 @@ def test_longest_gap_is_the_emulators_own_stall_not_a_link_loss_fault():
         emu.close()
 
 
+class RefusingSocket:
+    """The emulator's socket, whose sends raise while told to (a full send buffer on a loaded host)."""
+
+    def __init__(self, sock):
+        self.sock, self.refuse = sock, False
+
+    def sendto(self, buf, addr):
+        if self.refuse:
+            raise BlockingIOError(11, "Resource temporarily unavailable")
+        return self.sock.sendto(buf, addr)
+
+    def __getattr__(self, name):
+        return getattr(self.sock, name)
+
+
+def test_a_state_the_socket_refused_is_not_counted_sent_and_its_silence_is_a_gap():
+    emu = emulator()
+    client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    client.bind((LOOP, 0))
+    real = emu.sock
+    try:
+        wall = iter([0.0, 0.002, 0.104, 0.106, 0.108])  # read at each state sent
+        emu._clock = lambda: next(wall)
+        emu._packet(servo().encode(), client.getsockname())
+        emu.sock = RefusingSocket(real)
+        for _ in range(2):
+            emu._tick()                   # sent at 0 and 2 ms
+        emu.sock.refuse = True
+        for _ in range(50):
+            emu._tick()                   # refused: nothing reaches the client
+        emu.sock.refuse = False
+        emu._tick()                       # sent again at 104 ms: the client heard nothing for 102 ms
+        assert emu.stats.sent == 3 and emu.stats.send_failed == 50
+        assert emu.stats.longest_gap == pytest.approx(0.102)
+        for _ in range(2):
+            emu._tick()
+        assert emu.stats.sent == 5
+    finally:
+        emu.sock = real
+        client.close()
+        emu.close()
+
+
 def test_corrupt_fault_sends_states_the_sdk_rejects(started):
     emu, link = started(faults=["corrupt@0.15"])
     sock = link._sock

@@ -130,6 +130,8 @@ class EmulatorStats:
         ignored: packets that arrived while a ``link-loss`` fault kept the state from going out.
         overruns: ticks whose work ended after their wall-clock deadline.
         sent: LowState packets sent.
+        send_failed: LowState packets the socket refused (``sendto`` raised: a full send buffer on a loaded
+            host, an unreachable client); the gap they leave counts in ``longest_gap``.
         poses: pose frames handed to the pose stream.
         ticks: plant steps taken (emulator time = ticks × 2 ms).
         longest_gap: the longest wall-clock time between two LowState packets
@@ -144,6 +146,7 @@ class EmulatorStats:
     ignored: int = 0
     overruns: int = 0
     sent: int = 0
+    send_failed: int = 0
     poses: int = 0
     ticks: int = 0
     longest_gap: float = 0.0
@@ -483,13 +486,14 @@ class Go1Emulator:
                 buf = buf[:-4] + bytes(b ^ 0xFF for b in buf[-4:])
             try:
                 self.sock.sendto(buf, self._client)
-                self._stats.sent += 1
             except OSError:
-                pass
-            now = self._clock()
-            if self._last_sent is not None:
-                self._stats.longest_gap = max(self._stats.longest_gap, now - self._last_sent)
-            self._last_sent = now
+                self._stats.send_failed += 1  # not sent: the client hears a silence, and the gap runs on
+            else:
+                self._stats.sent += 1
+                now = self._clock()
+                if self._last_sent is not None:
+                    self._stats.longest_gap = max(self._stats.longest_gap, now - self._last_sent)
+                self._last_sent = now
         else:
             self._last_sent = None  # a silence the emulator meant (no client yet, link-loss) is no gap
         self._send_poses()
