@@ -12,8 +12,8 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns, its longest gap between two state packets sent and the states its socket refused, so a watchdog
-trip on a gap the rig made is told from the client's own; ``lost_box`` counts the client's push-to-approach switches, ``holds`` the relay's
-soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
+trip on a gap the rig made is told from the client's own; ``lost_box`` counts the client's push-to-approach
+switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),

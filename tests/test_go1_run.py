@@ -188,6 +188,9 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "no valid robot state" in errors[0] and "Traceback" not in proc.stderr
     assert json.loads(proc.stdout)["failure"].startswith("no valid robot state")
+    # and it says which: a silent robot, or packets that came and failed the link's checks
+    assert ("(link lost)" if fault == "link-loss" else "invalid packets meanwhile, the last: LowState packet CRC "
+            "mismatch") in errors[0], errors[0]
     before = (t < t_loss) & valid
     assert (mode[before] == SERVO).all(axis=1).sum() > 500  # it was standing and walking on servo commands
     assert after.any(), f"no damping command after the fault; the client said:\n{proc.stderr}"

@@ -43,9 +43,8 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   reference before it, and finally once :data:`SPAN` seconds of data after it are in. The windows show it a
   second or two late, so each of its decisions for :data:`RELOCATE` seconds seeks it in the data from
   :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and scores clips drawn afresh from
-  where it lies; a
-  change's decisions add their lines' costs up (each scores its own clips of the data since it), so a
-  longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
+  where it lies; a change's decisions add their lines' costs up (each scores its own clips of the data
+  since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
   seconds after a change moved the reference the windows open no new one (they are still following it).
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
 
@@ -301,8 +300,8 @@ class SplitTracker:
     def relocate(self, t: float) -> str:
         """Place the pending change at ``t`` [s], earlier or later than before; the data since count as seen.
         Moved later by more than :data:`SHIFT`, its earlier decisions scored data from before it: their summed
-        costs are dropped. Returns
-        the reason of its decision now: ``change`` where a span of data after it is in, else ``provisional``."""
+        costs are dropped. Returns the reason of its decision now: ``change`` where a span of data after it is
+        in, else ``provisional``."""
         since, held = self.pending
         self.seen = max(self.seen + since - float(t), 0.0)
         if t > since + SHIFT:
