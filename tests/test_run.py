@@ -1495,3 +1495,14 @@ def test_a_run_reads_its_robot_from_its_joint_efforts_and_plans_for_it(monkeypat
     assert not edited and result.side.kp == (s.kp,) * 12 and not any("not the one" in m for m in result.messages)
     with pytest.raises(AmheError, match="robot_read"):
         run_task(task, None, replace(s, mode="true"))
+
+
+def test_a_robot_run_whose_mhe_attributes_from_the_nominal_prior_is_told_to_start_from_a_belief():
+    from amhe_cli.cli.run import prior_warning
+    _, attribute = run_settings("t4", "adaptive", {"mhe": {"attribute": True}}, realtime=True)
+    _, windows = run_settings("t4", "adaptive", {}, realtime=True)
+    assert "start from a belief (--belief" in prior_warning("go1", "adaptive", attribute, None)
+    assert prior_warning("go1", "adaptive", attribute, start=object()) is None  # a belief given
+    assert prior_warning("sim", "adaptive", attribute, None) is None  # a sim run probes first
+    assert prior_warning("go1", "baseline", attribute, None) is None  # no MHE
+    assert prior_warning("go1", "adaptive", windows, None) is None  # the windows' own split, no held one
