@@ -55,7 +55,7 @@ def within_after(t, mass, mu, mass_t, mu_t, change: float) -> float | None:
     if not k.size or not ok[k[-1]]:
         return None
     bad = k[~ok[k]]
-    return float((t[k[0]] if not bad.size else t[bad[-1] + 1]) - change)
+    return round(float((t[k[0]] if not bad.size else t[bad[-1] + 1]) - change), 3)
 
 
 def run(job):
