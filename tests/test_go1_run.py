@@ -195,7 +195,12 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
     assert (mode[before] == SERVO).all(axis=1).sum() > 500  # it was standing and walking on servo commands
     assert after.any(), f"no damping command after the fault; the client said:\n{proc.stderr}"
     # within 50 ms of the last state (+ two emulator ticks)
-    assert t[after][0] - t_loss <= DAMP_WITHIN, f"damped {t[after][0] - t_loss:.3f} s after the fault\n{emu.summary}"
+    # a failure says how long the client itself saw no state when it tripped (a CI run once damped 62 ms after
+    # the fault by the emulator's rows, the emulator 156 ticks overrun, and did not say)
+    said = re.search(r"no valid robot state for (\d+) ms", errors[0])
+    assert t[after][0] - t_loss <= DAMP_WITHIN, (f"damped {t[after][0] - t_loss:.3f} s after the fault; the client "
+                                                 f"tripped {said.group(1) if said else '?'} ms after its last state"
+                                                 f"\n{emu.summary}")
     assert damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # and damping from then on
     traj = read_log(str(out))  # the recording is closed and readable
     assert traj.duration > 1.0
