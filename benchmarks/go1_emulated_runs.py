@@ -13,7 +13,8 @@ once (default: as many as the CPUs hold). The same seeds run in every mode, so r
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns, its longest gap between two state packets sent and the states its socket refused, so a watchdog
 trip on a gap the rig made is told from the client's own; ``lost_box`` counts the client's push-to-approach
-switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each fall-reflex recovery,
+switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each
+fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
@@ -61,6 +62,7 @@ from queue import Queue
 import numpy as np
 from amhe_cli.control.tasks import get_task
 from amhe_cli.io.reader import inspect_log, read_float_arrays
+from mhe_accuracy import MASS_BOUND, MU_BOUND, held_from, within_bounds  # benchmarks/: the issue's bounds
 
 AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
@@ -74,8 +76,6 @@ RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
 ROBOT_READ = re.compile(r"t=([0-9.]+) s: this robot is not the one the planner modelled: its own joint efforts read "
                         r"the servo at ([0-9.]+) × the commanded gains and the motors at ([0-9]+)%")
-#: The bounds the MHE is held to after a change: |mass error| as a share, |μ error| (issue #24).
-MASS_BOUND, MU_BOUND = 0.10, 0.05
 #: Each change the run's MHE attributed (``mhe: {attribute: true}``), from its run log: data time, decision, parameter, value.
 ATTRIBUTED = re.compile(r"t=([0-9.]+) s: MHE attributes the change \((\w+), data from [0-9.]+ s\) to (\w+): ([0-9.]+)")
 #: The MHE is judged from this long after a change [s] (the issue's "from 3 s after each change").
@@ -140,10 +140,8 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
                "mu_err": round(float(np.max(np.abs(mu - tr["box_friction"]))), 3)}
         if i > 0:  # when it got there: seconds after the change from which every estimate holds both bounds
             k = in_force(a, b)
-            bad = ((np.abs(mass_all[k] / tr["box_mass"] - 1) > MASS_BOUND)
-                   | (np.abs(mu_all[k] - tr["box_friction"]) > MU_BOUND))
-            row["within_after_s"] = (0.0 if not bad.any() else None if bad[-1]
-                                     else round(float(t[k[np.where(bad)[0][-1] + 1]] - a), 2))
+            held = held_from(t[k], within_bounds(mass_all[k], mu_all[k], tr["box_mass"], tr["box_friction"]), a)
+            row["within_after_s"] = None if held is None else round(held, 2)
         out.append(row)
     return out
 
