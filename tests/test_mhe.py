@@ -164,6 +164,83 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
         MHESettings(attribute=True, attribute_device="gpu").check()
 
 
+
+def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_loop_when_it_finishes(
+        step_log, monkeypatch):
+    """``concurrent`` (``run`` on the wall clock, decisions on a backend of their own): the windows go on while a
+    decision runs, reporting the split published before it; the tracker is the decision's alone, the windows
+    queued and fused once it is in; the loop's :class:`EstimatorThread` hands the new split out as soon as the
+    decision finishes (``poll_decision``), not at the next window; a decision that fails is reported and the
+    split kept; a model edit meanwhile reaches the decisions' backend only after it."""
+    import threading
+    from amhe_cli.control.closed_loop import EstimatorThread
+    from amhe_cli.estimation import attribution
+    monkeypatch.setattr(attribution, "PERIOD", 1.0)
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
+    times = iter(np.arange(t_push, step_log.t[-1], 0.25))
+    mhe = MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1, attribute_device="cpu"))
+    mhe.concurrent = True
+    assert mhe.warm() > 0  # as run does: the decisions' backend has its model copies before the loop
+    copies = {id(m) for m in mhe._decide_pool._models}
+    gate, started, fail = threading.Event(), threading.Event(), []
+    real = MovingHorizonEstimator._decide
+
+    def held(self, *job):  # a decision that waits for the test's word, as a slow backend would
+        started.set()
+        assert gate.wait(60)
+        if fail:
+            raise RuntimeError(fail[0])
+        return real(self, *job)
+
+    monkeypatch.setattr(MovingHorizonEstimator, "_decide", held)
+    est = EstimatorThread(mhe)
+    tr = mhe.tracker
+
+    def window():
+        assert est.submit(step_log, next(times))
+        return est.poll(wait=True)
+
+    first = window()
+    while not started.is_set():
+        first = window()
+    assert mhe.deciding and mhe.decided == 0 and not tr.decisions
+    before = (first.mean[tr.im], first.mean[tr.iu])
+    last_fused = tr.last
+    during = [window() for _ in range(3)]  # the windows go on, each as fast as without a decision
+    assert mhe.deciding and [q[0] for q in mhe._queued] == [u.t for u in during if not u.skipped]
+    assert tr.last == last_fused and not tr.decisions  # the tracker untouched meanwhile
+    for u in during:
+        assert (u.mean[tr.im], u.mean[tr.iu]) == before and u.compute_time < 5.0
+    assert est.poll_decision() is None  # nothing new to hand out yet
+    edits = []
+    mhe.edit_models(lambda mdl: edits.append(id(mdl)))
+    assert copies and not copies & set(edits) and len(edits) > 1  # the windows' models now, not the decision's
+    gate.set()
+    mhe._decider.join(60)
+    assert mhe.decided == 1 and len(tr.decisions) == 1 and tr.decisions[0].t == first.t
+    handed = est.poll_decision()  # the decision's split, at once, on the last window's other parameters
+    assert handed is not None and (handed.mean[tr.im], handed.mean[tr.iu]) == tr.ref
+    assert handed.t == during[-1].t and est.poll_decision() is None
+    after = window()  # the queued windows fused, in order, then this one; the edit reaches the decisions' models
+    assert tr.last == after.t and not mhe._queued and copies <= set(edits)
+    # a decision that fails: reported by the loop's thread, the split kept, the windows unharmed
+    fail.append("backend lost")
+    gate.clear()
+    started.clear()
+    while not started.is_set():
+        window()
+    kept = tr.ref
+    gate.set()
+    mhe._decider.join(60)
+    errors = est.take_errors()
+    assert len(errors) == 1 and "MHE line decision failed (RuntimeError: backend lost)" in errors[0]
+    assert tr.ref == kept and est.poll_decision() is not None and window() is not None
+    est.close()
+
+
 # -- outputs and errors through the CLI ------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ from amhe_cli.errors import AmheError
 from amhe_cli.control.evaluate import run_settings, summarise
 from amhe_cli.control.gait import GAITS, HIP_POS, LEGS, STAND_HEIGHT
 from amhe_cli.control.maneuver import ABDUCTION_RANGE, CALF, THIGH, leg_fk3, leg_ik3
-from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, Update
 from amhe_cli.control.planner import PlannerSettings, spline_basis
 from amhe_cli.estimation.sampling import mppi_weights
 from amhe_cli.model.scene import FOOT_RADIUS, STAND_JOINTS
@@ -888,9 +888,14 @@ def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_update
     assert describe_split(RunSettings(**wall), clocked=True, cpus=2).endswith("busy at most 50% of a core (mhe_cores)")
 
     class Slow:  # an estimator whose update takes 0.2 s of wall time
+        decided = 0  # line decisions on a thread of their own: none
+
         def update(self, traj, t):
             time.sleep(0.2)
-            return t
+            return Update(t, np.zeros(1), np.ones(1), float("nan"), 0, 0.2, True)
+
+        def take_decision_errors(self):
+            return []
 
         def close(self):
             pass
@@ -898,7 +903,7 @@ def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_update
     thread = EstimatorThread(Slow())
     assert thread.rested(0.5) and thread.submit(None, 1.0)
     assert not thread.rested(1.0) and not thread.submit(None, 1.5)  # one update at a time
-    assert thread.poll(wait=True) == 1.0
+    assert thread.poll(wait=True).t == 1.0 and thread.poll_decision() is None
     assert thread.rested(1.0) and not thread.rested(0.5)  # at half a core it idles as long as it worked
     time.sleep(0.25)
     assert thread.rested(0.5)
@@ -942,7 +947,6 @@ def test_an_emulated_latency_runs_the_wall_clocks_loop_the_same_on_every_run_and
 
 def test_mhe_update_reaches_the_planner_with_inertia_following_mass():
     from amhe_cli.control.closed_loop import _to_planner, task_scene_config
-    from amhe_cli.estimation.mhe import Update
     from amhe_cli.model.params import ParameterSpace
     from amhe_cli.model.scene import Scene
 

@@ -111,7 +111,9 @@ class EstimatorThread:
 
     An exception inside an update is caught: the last good estimate stays, and
     :attr:`errors` records it. The controller is never blocked unless it asks
-    to :meth:`wait` (lock-step).
+    to :meth:`wait` (lock-step). Line decisions on a thread of their own
+    (:attr:`MovingHorizonEstimator.concurrent`) reach the controller through
+    :meth:`poll_decision`, as soon as they finish, not at the next window.
     """
 
     def __init__(self, mhe: MovingHorizonEstimator):
@@ -122,6 +124,8 @@ class EstimatorThread:
         self.errors: list[str] = []
         self.compute_time = 0.0  # wall time of the last finished update [s]
         self.finished_at = -np.inf  # time.monotonic() when it finished
+        self._last: Update | None = None  # the last informative update handed out
+        self._decided = 0  # the estimator's decisions on their own thread that the updates handed out carry
 
     @property
     def busy(self) -> bool:
@@ -157,18 +161,34 @@ class EstimatorThread:
         return True
 
     def take_errors(self) -> list[str]:
-        """Errors recorded since the last call."""
+        """Errors recorded since the last call (the updates', then the line decisions' on their own thread)."""
         with self._lock:
             out, self.errors = self.errors, []
-        return out
+        return out + self.mhe.take_decision_errors()
 
     def poll(self, wait: bool = False) -> Update | None:
-        """The finished update not yet collected (None if none); ``wait`` blocks until the running one ends."""
+        """The finished update not yet collected (None if none), with the newest split a line decision
+        published (:meth:`MovingHorizonEstimator.stamp`); ``wait`` blocks until the running one ends."""
         if wait and self._thread is not None:
             self._thread.join()
         with self._lock:
             res, self._result = self._result, None
-        return res
+        return None if res is None else self._hand_out(res)
+
+    def poll_decision(self) -> Update | None:
+        """The last informative update again, stamped with the split of a line decision that finished on its
+        own thread since it was handed out; None where none did (or no update was informative yet)."""
+        if self.mhe.decided == self._decided or self._last is None:
+            return None
+        return self._hand_out(self._last)
+
+    def _hand_out(self, res: Update) -> Update:
+        self._decided = self.mhe.decided
+        if res.skipped:
+            return res
+        mean, std = self.mhe.stamp(res.mean, res.std)
+        self._last = replace(res, mean=mean, std=std)
+        return self._last
 
     def close(self) -> None:
         if self._thread is not None:
@@ -555,7 +575,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 note(describe_split(s, clocked))
                 loaded = estimator.mhe.warm()  # and its line decisions' backend, not at the first decision
                 if loaded:
-                    note(f"the MHE's line decisions roll out on {s.mhe.attribute_device} (loaded in {loaded:.1f} s)")
+                    # on the clock a decision (seconds on a CPU, a few GPU batches) must not hold the windows up
+                    estimator.mhe.concurrent = True
+                    note(f"the MHE's line decisions roll out on {s.mhe.attribute_device} (loaded in {loaded:.1f} s), "
+                         "on a thread of their own beside the windows")
         read_on = s.mode != "true" and (clocked if s.robot_read is None else s.robot_read)
         if read_on:
             model_limit = torque_limit(plant.scene.model)  # the model's own, whatever the planner models
@@ -710,11 +733,16 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                 break
             if estimator is not None:
                 res = estimator.poll(wait=not clocked and pending and now >= next_update - 1e-9)
-                if res is not None:
+                fresh = res is not None  # a window's update, else perhaps a line decision's newer split
+                if fresh:
                     pending = False
-                    if not res.skipped:
+                else:
+                    res = estimator.poll_decision()
+                if res is not None:
+                    if not res.skipped and fresh:
                         mhe_steps.append(res.steps)
                         mhe_compute.append(res.compute_time)
+                    if not res.skipped:
                         window = None
                         if view and res.window_mean is not None:
                             own = replace(res, mean=res.window_mean)

@@ -26,6 +26,7 @@ from the estimator thread with the live buffer.
 
 from __future__ import annotations
 
+import threading
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -265,6 +266,14 @@ class MovingHorizonEstimator:
         duty: share of a core the estimator is given (1: a core of its own; ``run`` sets it from
             ``mhe_cores``): with ``settings.fill`` an update aims at ``fill · every · duty`` seconds.
         steps: step budget per candidate of the next update (:meth:`budget`).
+        concurrent: with ``settings.attribute`` and a backend of the decisions' own (``attribute_device``), make
+            each line decision on a thread of its own (``run`` sets it on the wall clock):
+            the windows go on at their cadence meanwhile, and those that end during a decision are fused once
+            it is in. Off (default): a decision is made inside the update that found it due, as offline.
+        decided: line decisions finished on their own thread so far (:attr:`concurrent`): a reader that saw
+            fewer may :meth:`stamp` its last update with the newer split.
+        decision_errors: failures of decisions on their own thread, one line each, not yet taken
+            (:meth:`take_decision_errors`).
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -284,6 +293,17 @@ class MovingHorizonEstimator:
                              if self.settings.attribute and self.settings.attribute_device is not None else None)
         self._decide_cost: RolloutCost | None = None
         self.rng = np.random.default_rng(self.settings.seed)
+        # a decision on its own thread draws its clips from its own stream (a Generator is not thread-safe);
+        # made inside the update, from the windows' stream, as offline replays always have
+        self._decide_rng = np.random.default_rng([self.settings.seed, 1])
+        self.concurrent = False
+        self._decider: threading.Thread | None = None
+        self._queued: list[tuple[float, np.ndarray]] = []  # windows (t, mean) that ended during a decision
+        self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
+        self._lock = threading.Lock()
+        self._reported: tuple[tuple[float, float], tuple[float, float]] | None = None  # (mass, μ), their σ
+        self.decided = 0
+        self.decision_errors: list[str] = []
         self.mean = space.mean0.copy()
         self.std = space.scale * self.settings.sigma_init
         self.window_mean = self.mean.copy()
@@ -356,12 +376,18 @@ class MovingHorizonEstimator:
     def edit_models(self, edit) -> None:
         """Apply ``edit(model)`` (in place; it sets values) to the models the next updates roll out, on either
         backend: what is not an estimated parameter, such as a robot's servo read mid-run
-        (:mod:`~amhe_cli.control.robot_side`). Call it between updates."""
+        (:mod:`~amhe_cli.control.robot_side`). Call it between updates; during a decision on its own thread
+        (:attr:`concurrent`) the decisions' backend's model copies are edited at the first update after it."""
         self.pool.edit_models(edit, base=self.space.scene.model)
         if self._decide_pool is not None:
-            self._decide_pool.edit_models(edit, base=self.space.scene.model)
+            if self.deciding:
+                self._decide_edits.append(edit)
+            else:
+                self._decide_pool.edit_models(edit, base=self.space.scene.model)
 
     def close(self) -> None:
+        if self._decider is not None:
+            self._decider.join()  # a decision in flight ends before its backend does
         if self._own_pool:
             self.pool.close()
         if self._decide_pool is not None:
@@ -382,46 +408,108 @@ class MovingHorizonEstimator:
         return window_clips(traj, self.scene, start, stop, clip_steps, self.steps, s.min_speed,
                             rest_travel(traj))
 
-    def _split(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray) -> None:
-        """Replace the reported mass and friction with the tracker's (``settings.attribute``), making a due
-        line decision over clips drawn as ``identify`` draws them (:mod:`~amhe_cli.estimation.attribution`)."""
+    @property
+    def deciding(self) -> bool:
+        """Whether a line decision is running on its own thread (:attr:`concurrent`)."""
+        return self._decider is not None and self._decider.is_alive()
+
+    def _attribute(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray) -> None:
+        """Feed the window (d,) ending at ``t`` [s] to the tracker (``settings.attribute``) and make a due line
+        decision: here, or on a thread of its own (:attr:`concurrent`). While one runs there, the tracker is its
+        alone: the window waits in a queue, fused in order once the decision is in."""
         tr = self.tracker
+        if self.deciding:
+            self._queued.append((float(t), mu.copy()))
+            return
+        for edit in self._decide_edits:
+            self._decide_pool.edit_models(edit, base=self.space.scene.model)
+        self._decide_edits.clear()
+        for tq, mq in self._queued:
+            tr.fuse(tq, mq)
+        self._queued.clear()
         tr.fuse(t, mu)
         due = tr.due()
-        if due is not None:
-            since, reason = due
-            start = tr.search_from(reason)
-            if start is not None:
-                # the change sought in the data from before it showed (:func:`locate`), then decided on clips
-                # drawn afresh after it: the clips that placed it favour a change, whichever there was
-                clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS)
-                if clips is not None:
-                    C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(self.mean),
-                                                                        tr.held(self.mean)])).per_clip
-                    reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
-                    since = tr.pending[0]
-            clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS)
-            if clips is not None:
-                cost = self._decision_cost(clips)
-                # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
-                # decision's end stays: its data may straddle a change the windows have not confirmed)
-                for retry in ((True, False) if reason != "period" else (False,)):
-                    P = tr.candidates(self.mean)
-                    if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
-                                 score=lambda R: cost.evaluate(R).data) is not None:
-                        break
-        self.mean, self.std = self.mean.copy(), self.std.copy()
-        self.mean[tr.im], self.mean[tr.iu] = tr.ref
-        self.std[tr.im], self.std[tr.iu] = tr.std()
+        aside = self.concurrent and self._decide_pool is not None  # the windows' pool serves one thread
+        if due is not None and not aside:
+            self._decide(traj, stop, t, *due, self.mean.copy(), self.rng)
+        self._publish()
+        if due is not None and aside:
+            self._decider = threading.Thread(target=self._decide_aside, name="amhe-mhe-decide", daemon=True,
+                                             args=(traj, stop, t, *due, self.mean.copy(), self._decide_rng))
+            self._decider.start()
 
-    def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int):
-        """``n`` clips drawn as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, or
-        None where not a clip's worth is in yet (the next update tries again)."""
+    def _decide_aside(self, *job) -> None:
+        """:meth:`_decide` on its own thread: a failure is recorded (:attr:`decision_errors`), the reference
+        kept; either way the split it leaves is published (:attr:`decided`)."""
+        try:
+            self._decide(*job)
+        except Exception as exc:  # noqa: BLE001 - the windows and the planner go on with the reference as it was
+            with self._lock:
+                self.decision_errors.append(f"t={job[2]:.2f} s: MHE line decision failed ({type(exc).__name__}: "
+                                            f"{exc}); keeping the reported mass and friction")
+        finally:
+            self._publish(decided=True)
+
+    def _publish(self, decided: bool = False) -> None:
+        """Make the tracker's split (and its σ) what :meth:`stamp` writes; ``decided``: one more decision in."""
+        tr = self.tracker
+        with self._lock:
+            self._reported = (tr.ref, tr.std())
+            self.decided += int(decided)
+
+    def stamp(self, mean: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``mean``, ``std`` (d,) with the box's mass and friction (and their σ, floored) the tracker last
+        published (``settings.attribute``), as copies; as given without it."""
+        if self.tracker is None or self._reported is None:
+            return mean, std
+        mean, std = np.array(mean, dtype=float), np.array(std, dtype=float)
+        im, iu = self.tracker.im, self.tracker.iu
+        with self._lock:
+            (mean[im], mean[iu]), (std[im], std[iu]) = self._reported
+        floor = self.space.scale * self.settings.sigma_floor
+        std[[im, iu]] = np.maximum(std[[im, iu]], floor[[im, iu]])
+        return mean, std
+
+    def take_decision_errors(self) -> list[str]:
+        """:attr:`decision_errors` since the last call."""
+        with self._lock:
+            out, self.decision_errors = self.decision_errors, []
+        return out
+
+    def _decide(self, traj: Trajectory, stop: int, t: float, since: float, reason: str, base: np.ndarray,
+                rng: np.random.Generator) -> None:
+        """The line decision due at the update ending at sample ``stop`` (time ``t`` [s]) for ``reason``, over
+        the data from ``since`` [s] (:meth:`SplitTracker.due`), over clips drawn as ``identify`` draws them
+        with ``rng`` (:mod:`~amhe_cli.estimation.attribution`); ``base`` (d,) holds the other parameters."""
+        tr = self.tracker
+        start = tr.search_from(reason)
+        if start is not None:
+            # the change sought in the data from before it showed (:func:`locate`), then decided on clips
+            # drawn afresh after it: the clips that placed it favour a change, whichever there was
+            clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
+            if clips is not None:
+                C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
+                reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
+                since = tr.pending[0]
+        clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
+        if clips is not None:
+            cost = self._decision_cost(clips)
+            # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
+            # decision's end stays: its data may straddle a change the windows have not confirmed)
+            for retry in ((True, False) if reason != "period" else (False,)):
+                P = tr.candidates(base)
+                if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
+                             score=lambda R: cost.evaluate(R).data) is not None:
+                    break
+
+    def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):
+        """``n`` clips drawn with ``rng`` as ``identify`` draws them (its horizons) from ``since`` [s] to sample
+        ``stop``, or None where not a clip's worth is in yet (the next update tries again)."""
         _, horizon, _ = clip_plan(traj)
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
-                return sample_clips(traj, self.scene, n, horizon, self.rng, (since, float(traj.t[stop - 1])),
+                return sample_clips(traj, self.scene, n, horizon, rng, (since, float(traj.t[stop - 1])),
                                     self.settings.min_speed, rest_travel(traj))
         except AmheError:
             return None
@@ -479,7 +567,8 @@ class MovingHorizonEstimator:
         if self.fusion is not None:
             self.mean, self.std = self.fusion.update(t, mu), self.fusion.std
         if self.tracker is not None:
-            self._split(traj, stop, t, mu)
+            self._attribute(traj, stop, t, mu)
+            self.mean, self.std = self.stamp(self.mean, self.std)
             self.std = np.maximum(self.std, floor)
         elapsed = time.perf_counter() - t0
         self.budget(elapsed, it * int(np.sum(clips.horizon)))
