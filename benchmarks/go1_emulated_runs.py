@@ -19,7 +19,8 @@ fall-reflex recovery,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
 ``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
-seconds after the change from which every estimate held both bounds, None where the last did not),
+seconds after the change from which every estimate held both bounds, None where the last did not, and
+``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s),
 then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
@@ -97,6 +98,10 @@ def run_records(path: str) -> dict:
         return {}
 
 
+#: Seconds after a change whose estimate swaps a row lists (``swaps``): when each reading reached the planner.
+SWAPS_AFTER = 8.0
+
+
 def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> list[dict]:
     """Per segment of constant truth (the start, then after each fired event): the worst estimate error
     from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic)."""
@@ -142,6 +147,10 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
             k = in_force(a, b)
             held = held_from(t[k], within_bounds(mass_all[k], mu_all[k], tr["box_mass"], tr["box_friction"]), a)
             row["within_after_s"] = None if held is None else round(held, 2)
+            # what the planner was given when, over the first SWAPS_AFTER s: seconds after the change, kg, μ
+            near = k[t[k] < a + SWAPS_AFTER]
+            row["swaps"] = [[round(float(t[j] - a), 2), round(float(mass_all[j]), 2), round(float(mu_all[j]), 3)]
+                            for j in near]
         out.append(row)
     return out
 
