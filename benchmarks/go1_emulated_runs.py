@@ -17,6 +17,7 @@ switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` h
 fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
+``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
 ``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
 seconds after the change from which every estimate held both bounds, None where the last did not, and
@@ -72,6 +73,7 @@ EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
+DECISION_TIME = re.compile(r"MHE line decisions took a median ([0-9.]+) s")
 #: the fall reflex's start of a recovery, with what set it off (reflex.FallReflex.update)
 RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
@@ -239,6 +241,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     m = UPDATE_TIME.search(log)
     if m:  # the wall time of its updates on the core it had: why fill's budget grew or did not
         res["mhe_update_s"] = float(m.group(1))
+    m = DECISION_TIME.search(log)
+    if m:  # with the attribution: its share of the time from a change's data to the planner
+        res["mhe_decision_s"] = float(m.group(1))
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)

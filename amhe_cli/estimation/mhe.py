@@ -274,6 +274,8 @@ class MovingHorizonEstimator:
             fewer may :meth:`stamp` its last update with the newer split.
         decision_errors: failures of decisions on their own thread, one line each, not yet taken
             (:meth:`take_decision_errors`).
+        decision_times: wall time [s] of each line decision made so far (where on its own thread, the time
+            from its start to its split published).
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -304,6 +306,7 @@ class MovingHorizonEstimator:
         self._reported: tuple[tuple[float, float], tuple[float, float]] | None = None  # (mass, μ), their σ
         self.decided = 0
         self.decision_errors: list[str] = []
+        self.decision_times: list[float] = []
         self.mean = space.mean0.copy()
         self.std = space.scale * self.settings.sigma_init
         self.window_mean = self.mean.copy()
@@ -481,6 +484,14 @@ class MovingHorizonEstimator:
         """The line decision due at the update ending at sample ``stop`` (time ``t`` [s]) for ``reason``, over
         the data from ``since`` [s] (:meth:`SplitTracker.due`), over clips drawn as ``identify`` draws them
         with ``rng`` (:mod:`~amhe_cli.estimation.attribution`); ``base`` (d,) holds the other parameters."""
+        t0 = time.perf_counter()
+        try:
+            self._lines(traj, stop, t, since, reason, base, rng)
+        finally:
+            self.decision_times.append(time.perf_counter() - t0)
+
+    def _lines(self, traj, stop, t, since, reason, base, rng) -> None:
+        """:meth:`_decide`'s rollouts and the tracker's rules, untimed."""
         tr = self.tracker
         start = tr.search_from(reason)
         if start is not None:
