@@ -17,7 +17,8 @@ switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` h
 fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
 ``mhe_deferred`` the MHE updates its core budget put off and ``mhe_update_s`` their median wall time [s],
-``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``),
+``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``) and
+``mhe_decision_batches`` where their GPU backend spent its time (batches, steps, fields, read-back [s]),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
 ``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
 seconds after the change from which every estimate held both bounds, None where the last did not, and
@@ -74,6 +75,8 @@ DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
 DECISION_TIME = re.compile(r"MHE line decisions took a median ([0-9.]+) s")
+DECISION_BATCHES = re.compile(r"their backend: ([0-9]+) batches, steps ([0-9.]+) s, candidates' fields ([0-9.]+) s, "
+                              r"read-back ([0-9.]+) s")
 #: the fall reflex's start of a recovery, with what set it off (reflex.FallReflex.update)
 RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
@@ -244,6 +247,10 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     m = DECISION_TIME.search(log)
     if m:  # with the attribution: its share of the time from a change's data to the planner
         res["mhe_decision_s"] = float(m.group(1))
+    m = DECISION_BATCHES.search(log)
+    if m:  # and where their GPU backend spent it, summed over the run
+        res["mhe_decision_batches"] = dict(zip(("batches", "steps_s", "fields_s", "readback_s"),
+                                               (int(m.group(1)), *map(float, m.group(2, 3, 4)))))
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
