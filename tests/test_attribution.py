@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import (BACK, DENSE, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE, RETRY, SHIFT,
+from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE, RETRY, SHIFT,
                                             SPAN, SplitTracker, line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
@@ -113,20 +113,6 @@ def test_the_lines_are_compared_at_evaluated_points_not_at_a_parabola_s_extrapol
     assert R.shape == (2 * FINE.size, 2) and np.all(R[:FINE.size, 1] == 0.5) and np.all(R[FINE.size:, 0] == 4.0)
     assert fine.changed == "box_mass" and fine.friction == 0.5
     assert fine.cost["box_friction"] < grid.cost["box_friction"] and fine.cost["box_friction"] >= 125
-    # one batch on a wide backend (a GPU): the lines at a third of their step, the refinements looked up in it:
-    # the same decision as the grid then its refinements, with nothing scored twice
-    tr = tracker()
-    tr.open(10.0, SPAN)
-    P = tr.candidates(np.zeros(2))
-    D, unpack = tr.wide(P)
-    assert D.shape == (2 * DENSE.size, 2) and np.array_equal(D[:DENSE.size:3], P[:n])
-    assert np.all(D[:DENSE.size, 1] == 0.5) and np.all(D[DENSE.size:, 0] == 4.0)
-    J, looked_up = unpack(lines(D, DENSE.size))
-    np.testing.assert_array_equal(J, lines(P, n))
-    np.testing.assert_allclose(looked_up(R), lines(R, FINE.size), rtol=1e-9)
-    one = tr.decide(12.0, "change", P, J, retry=False, score=looked_up)
-    assert one.changed == fine.changed and (one.mass, one.friction) == pytest.approx((fine.mass, fine.friction), rel=1e-9)
-    assert one.cost == pytest.approx(fine.cost, rel=1e-9)
     assert abs(fine.mass - 6.0) < abs(grid.mass - 6.0) and fine.mass == pytest.approx(6.0, rel=0.03)
 
 

@@ -132,8 +132,7 @@ def test_fusion_reports_but_does_not_steer_the_windows(step_log):
 def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monkeypatch):
     """With ``attribute`` the MHE reports the tracker's reference, moved by decisions scored on the log; with
     ``attribute_device`` the decisions roll out on a backend of their own (here a second CPU pool, as
-    ``cuda`` sends them to the GPU beside the windows' CPU pool) and decide the same; on a wide backend (a
-    GPU) their lines and refinements go as one batch, and decide the same."""
+    ``cuda`` sends them to the GPU beside the windows' CPU pool) and decide the same."""
     from amhe_cli.estimation import attribution
     from amhe_cli.model.rollout import RolloutPool
     monkeypatch.setattr(attribution, "PERIOD", 1.0)  # a decision every informative second, to keep this short
@@ -144,29 +143,23 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
     t_step = step_log.t[np.argmax(mu > 0.45)]
     t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
     runs = {}
-    for where, wide in ((None, False), ("cpu", False), ("cpu", True)):
+    for where in (None, "cpu"):
         with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
                                                               attribute_device=where)) as mhe:
-            if wide:  # as a GPU backend: the lines and their refinements as one batch
-                mhe._decide_pool.wide = True
             assert mhe.lookback == attribution.LOOKBACK
             assert (mhe._decide_pool is None) == (where is None)
             ups = [mhe.update(step_log, t) for t in np.arange(t_push, min(t_push + 3.0, t_step), 0.5)]
             if where is not None:  # the decisions' clips went to their own pool, the windows' to theirs
                 assert isinstance(mhe._decide_pool, RolloutPool) and mhe._decide_cost.pool is mhe._decide_pool
                 assert mhe._cost.pool is mhe.pool is not mhe._decide_pool
-        runs[where, wide] = mhe.tracker
+        runs[where] = mhe.tracker
         tr = mhe.tracker
         assert tr.decisions and all(d.reason == "period" for d in tr.decisions)
         informative = [u for u in ups if not u.skipped]
         np.testing.assert_allclose(informative[-1].mean, tr.ref)
         # on the first floor, from the truth as its prior: the scored lines keep it there
         assert abs(tr.ref[0] / 2.0 - 1) < 0.1 and abs(tr.ref[1] - 0.3) < 0.03
-    assert [d.cost for d in runs["cpu", False].decisions] == [d.cost for d in runs[None, False].decisions]
-    wide = runs["cpu", True].decisions
-    assert len(wide) == len(runs[None, False].decisions) and all(
-        d.cost == pytest.approx(e.cost, rel=1e-6) and (d.mass, d.friction) == pytest.approx((e.mass, e.friction))
-        for d, e in zip(wide, runs[None, False].decisions))
+    assert [d.cost for d in runs["cpu"].decisions] == [d.cost for d in runs[None].decisions]
     with pytest.raises(AmheError, match="attribute_device 'gpu'"):
         MHESettings(attribute=True, attribute_device="gpu").check()
 

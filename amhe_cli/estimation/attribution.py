@@ -97,9 +97,6 @@ FACTORS = np.exp(np.linspace(np.log(1 / 3), np.log(3.0), 11))
 #: over 12 noisy recordings × 4 seeds (docs/evaluation.md "Lines compared at evaluated points"): T4 16 of
 #: 16 against 12, T3 16 of 32 against 19 (21 with the final decision by the lower line).
 FINE = np.array([-2.0, -1.0, 1.0, 2.0]) / 3.0
-#: Factors of a one-batch decision's lines (:meth:`SplitTracker.wide`): :data:`FACTORS` at a third of their step,
-#: so every point :data:`FINE` may add around any grid point is among them.
-DENSE = FACTORS[0] * (FACTORS[1] / FACTORS[0]) ** (np.arange(3 * (FACTORS.size - 1) + 1) / 3.0)
 #: Clips a line decision draws, as ``identify`` draws them for the log's noise (its 32, of 0.1–0.2 s on a
 #: noisy log). Half as many, on a replay of the live clock, lost the mass switch more often.
 CLIPS = 32
@@ -345,34 +342,6 @@ class SplitTracker:
         R[:FINE.size, self.im] = P[0, self.im] / FACTORS[0] * g[0]
         R[FINE.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g[1]
         return R, g[0], g[1]
-
-    def wide(self, P: np.ndarray):
-        """The lines of :meth:`candidates` ``P`` with every point :meth:`refinements` may add, to be scored as one
-        batch where a batch's width is cheap next to its depth (a GPU): ``(D, unpack)``, ``D`` (2·len(DENSE), d)
-        the mass line's :data:`DENSE` points then the friction line's (its grid points ``P``'s own rows), and
-        ``unpack(JD)`` of their costs (2·len(DENSE),) -> ``(J, score)`` for :meth:`decide`: ``J`` the costs of
-        ``P``, ``score`` the costs of refinements looked up, not scored again. The decision is the one two
-        batches (``P``, then the refinements) make, one batch sooner (*measured* on an H200 in the emulated
-        loop: a batch of a decision's 32 clips took 0.14–0.19 s of GPU steps, whatever its width up to ~1000
-        worlds)."""
-        n, k = FACTORS.size, DENSE.size
-        P = np.asarray(P, dtype=float)
-        scale = (P[0, self.im] / FACTORS[0], P[n, self.iu] / FACTORS[0])  # each line's factor 1
-        D = np.repeat(P[[0, n]], k, axis=0)
-        D[:k, self.im], D[k:, self.iu] = scale[0] * DENSE, scale[1] * DENSE
-        D[:k:3], D[k::3] = P[:n], P[n:]
-
-        def unpack(JD):
-            JD = np.asarray(JD, dtype=float)
-
-            def score(R):
-                f = FINE.size
-                near = lambda v, c: np.abs(np.log(v / c)[:, None] - np.log(DENSE)[None]).argmin(axis=1)  # noqa: E731
-                return np.r_[JD[near(R[:f, self.im], scale[0])], JD[k + near(R[f:, self.iu], scale[1])]]
-
-            return np.r_[JD[:k:3], JD[k::3]], score
-
-        return D, unpack
 
     def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True,
                score=None) -> Decision | None:

@@ -507,16 +507,10 @@ class MovingHorizonEstimator:
             cost = self._decision_cost(clips)
             # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
             # decision's end stays: its data may straddle a change the windows have not confirmed)
-            # on a wide backend (a GPU) the lines and every refinement a decision may ask for go as one batch
-            wide = getattr(self._decide_pool or self.pool, "wide", False)
             for retry in ((True, False) if reason != "period" else (False,)):
                 P = tr.candidates(base)
-                if wide:
-                    D, unpack = tr.wide(P)
-                    J, score = unpack(cost.evaluate(D).data)
-                else:
-                    J, score = cost.evaluate(P).data, (lambda R: cost.evaluate(R).data)
-                if tr.decide(t, reason, P, J, retry, score=score) is not None:
+                if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
+                             score=lambda R: cost.evaluate(R).data) is not None:
                     break
 
     def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):

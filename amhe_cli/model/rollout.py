@@ -42,10 +42,6 @@ class RolloutPool:
     Use as a context manager or call :meth:`close`.
     """
 
-    #: a batch costs in proportion to its width (candidates × clips), as on every CPU backend: see
-    #: :attr:`WarpRollout.wide <amhe_cli.model.rollout_warp.WarpRollout.wide>`
-    wide = False
-
     def __init__(self, model: mujoco.MjModel, nthread: int | None = None):
         self.template = model
         self.nthread = nthread or default_threads()

@@ -439,9 +439,6 @@ class WarpRollout:
         #: a CUDA stream of its own: two backends in one process (the run's planner and its MHE thread)
         #: then run their steps side by side instead of queueing on the device's default stream
         self.stream = wp.Stream(self.device) if self.device.is_cuda else None
-        #: a batch's width is cheap next to its depth (on CUDA a step of 256 or 2048 worlds takes about as
-        #: long): a caller with dependent batches may merge them into one wider batch
-        self.wide = self.device.is_cuda
         self._models: list[mujoco.MjModel] = []
         self._spaces_checked: set[int] = set()
         self._slots: dict[int, _Slot] = {}
