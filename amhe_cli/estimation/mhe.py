@@ -134,7 +134,8 @@ class MHESettings:
             (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips, and
             a change's first one 23 × 48 before them to locate it; the first 3–6 s of a CPU core, 0.2–0.25 s
             on an H100/H200 GPU) where a window is many small ones
-            (faster on the CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU.
+            (faster on the CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU,
+            where on the wall clock each runs on a thread of its own (:attr:`MovingHorizonEstimator.concurrent`).
     """
 
     window: float = 1.0
