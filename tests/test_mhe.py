@@ -222,6 +222,9 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     mhe._decider.join(60)
     assert mhe.decided == 1 and len(tr.decisions) == 1 and tr.decisions[0].t == first.t
     assert len(mhe.decision_times) == 1 and mhe.decision_times[0] > 0
+    said = mhe.describe_decisions()  # the run's log line (the CPU backend keeps no timing of its own)
+    assert said.startswith("MHE line decisions took a median ") and said.endswith("1 decisions, each on a thread "
+                                                                                    "of its own")
     handed = est.poll_decision()  # the decision's split, at once, on the last window's other parameters
     assert handed is not None and (handed.mean[tr.im], handed.mean[tr.iu]) == tr.ref
     assert handed.t == during[-1].t and est.poll_decision() is None

@@ -360,15 +360,6 @@ def make_plant(task: Task, kp: float, kd: float, control_period: float = 0.01, r
     return plant
 
 
-def _batch_times(mhe: MovingHorizonEstimator) -> str:
-    """Where the line decisions' GPU backend spent its time (MuJoCo Warp's own timing), or ''."""
-    tm = getattr(mhe._decide_pool, "timing", None)
-    if not tm or not tm.get("calls"):
-        return ""
-    return (f"; their backend: {tm['calls']} batches, steps {tm['steps']:.2f} s, candidates' fields "
-            f"{tm['fields'] + tm['upload']:.2f} s, read-back {tm['readback']:.2f} s in all")
-
-
 def make_estimator(task: Task, settings: "RunSettings", record_dt: float, prior: dict, prior_std: dict | None = None,
                    nthread: int = 1, duty: float = 1.0, side: RobotSide | None = None) -> MovingHorizonEstimator:
     """The online MHE of an ``adaptive`` run (paper §IV-A): the task's scene on the plant's recording grid
@@ -810,11 +801,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     if clocked and mhe_compute:  # what the estimator's core gave it: read beside the deferrals and fill's budget
         messages.append(f"MHE updates took a median {np.median(mhe_compute):.3f} s ({min(mhe_compute):.3f}–"
                         f"{max(mhe_compute):.3f}) of the {s.mhe.every:g} s between them, {len(mhe_compute)} updates")
-    took = estimator.mhe.decision_times if estimator is not None else []
-    if clocked and took:  # beside the updates: how late a decision's split reaches the planner after its data
-        messages.append(f"MHE line decisions took a median {np.median(took):.3f} s ({min(took):.3f}–{max(took):.3f}), "
-                        f"{len(took)} decisions" + (", each on a thread of its own" if estimator.mhe.concurrent
-                                                    else ", each inside its update") + _batch_times(estimator.mhe))
+    decided = estimator.mhe.describe_decisions() if clocked and estimator is not None else None
+    if decided:  # beside the updates: how late a decision's split reaches the planner after its data
+        messages.append(decided)
     if read_times:
         messages.append(f"the robot was read from its joint efforts {len(read_times)} times, a median "
                         f"{np.median(read_times):.3f} s each ({max(read_times):.3f} at most)")

@@ -275,8 +275,7 @@ class MovingHorizonEstimator:
             fewer may :meth:`stamp` its last update with the newer split.
         decision_errors: failures of decisions on their own thread, one line each, not yet taken
             (:meth:`take_decision_errors`).
-        decision_times: wall time [s] of each line decision made so far (where on its own thread, the time
-            from its start to its split published).
+        decision_times: wall time [s] of each line decision made so far (:meth:`describe_decisions`).
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -484,35 +483,46 @@ class MovingHorizonEstimator:
                 rng: np.random.Generator) -> None:
         """The line decision due at the update ending at sample ``stop`` (time ``t`` [s]) for ``reason``, over
         the data from ``since`` [s] (:meth:`SplitTracker.due`), over clips drawn as ``identify`` draws them
-        with ``rng`` (:mod:`~amhe_cli.estimation.attribution`); ``base`` (d,) holds the other parameters."""
+        with ``rng`` (:mod:`~amhe_cli.estimation.attribution`); ``base`` (d,) holds the other parameters.
+        Its wall time goes to :attr:`decision_times`."""
         t0 = time.perf_counter()
+        tr = self.tracker
         try:
-            self._lines(traj, stop, t, since, reason, base, rng)
+            start = tr.search_from(reason)
+            if start is not None:
+                # the change sought in the data from before it showed (:func:`locate`), then decided on clips
+                # drawn afresh after it: the clips that placed it favour a change, whichever there was
+                clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
+                if clips is not None:
+                    C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
+                    reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
+                    since = tr.pending[0]
+            clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
+            if clips is not None:
+                cost = self._decision_cost(clips)
+                # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
+                # decision's end stays: its data may straddle a change the windows have not confirmed)
+                for retry in ((True, False) if reason != "period" else (False,)):
+                    P = tr.candidates(base)
+                    if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
+                                 score=lambda R: cost.evaluate(R).data) is not None:
+                        break
         finally:
             self.decision_times.append(time.perf_counter() - t0)
 
-    def _lines(self, traj, stop, t, since, reason, base, rng) -> None:
-        """:meth:`_decide`'s rollouts and the tracker's rules, untimed."""
-        tr = self.tracker
-        start = tr.search_from(reason)
-        if start is not None:
-            # the change sought in the data from before it showed (:func:`locate`), then decided on clips
-            # drawn afresh after it: the clips that placed it favour a change, whichever there was
-            clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
-            if clips is not None:
-                C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
-                reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
-                since = tr.pending[0]
-        clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
-        if clips is not None:
-            cost = self._decision_cost(clips)
-            # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
-            # decision's end stays: its data may straddle a change the windows have not confirmed)
-            for retry in ((True, False) if reason != "period" else (False,)):
-                P = tr.candidates(base)
-                if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
-                             score=lambda R: cost.evaluate(R).data) is not None:
-                    break
+    def describe_decisions(self) -> str | None:
+        """One line on the line decisions so far (:attr:`decision_times`; where they ran, and with a GPU backend
+        of their own, where it spent its time), or None where none was made."""
+        took = self.decision_times
+        if not took:
+            return None
+        text = (f"MHE line decisions took a median {np.median(took):.3f} s ({min(took):.3f}–{max(took):.3f}), "
+                f"{len(took)} decisions, each " + ("on a thread of its own" if self.concurrent else "inside its update"))
+        tm = getattr(self._decide_pool, "timing", None)  # MuJoCo Warp's own timing
+        if tm and tm.get("calls"):
+            text += (f"; their backend: {tm['calls']} batches, steps {tm['steps']:.2f} s, candidates' fields "
+                     f"{tm['fields'] + tm['upload']:.2f} s, read-back {tm['readback']:.2f} s in all")
+        return text
 
     def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):
         """``n`` clips drawn with ``rng`` as ``identify`` draws them (its horizons) from ``since`` [s] to sample
