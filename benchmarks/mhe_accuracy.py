@@ -19,7 +19,8 @@ constant-parameter log given with ``--sliding`` (e.g. noisy motion capture) the
 friction is within 0.05 of the truth from 3 s after the box first slides (truth
 speed above 2 cm/s, from the truth CSV's box velocity where it has one) to the end. Configs: ``default`` (the library's
 settings, as ``amhe run`` uses them), ``mhe-replay`` (its CLI defaults,
-``REPLAY_SETTINGS``), and any ``--config``. Each (config, log, seed) runs in its own process; the
+``REPLAY_SETTINGS``, and on a noisy log with ``--prior`` the attribution with the run's windows), and any
+``--config``. Each (config, log, seed) runs in its own process; the
 table gives the fraction of runs meeting each target and the worst errors.
 Friction-step logs come from ``amhe run --task t4 --mode true`` (the box
 crosses from μ 0.4 to 0.8 at x = 1.5 m; truth CSV beside the log), mass-switch
@@ -78,10 +79,13 @@ def within_after(t, mass, mu, mass_t, mu_t, change: float) -> float | None:
 def run(job):
     log, kind, kw, seed, threads, prior, realtime = job
     from amhe_cli.estimation.cost import StateWeights
-    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, replay_windows
     from amhe_cli.estimation.problem import load_problem
-    from amhe_cli.estimation.replay import estimates_table, replay, truth_series
+    from amhe_cli.estimation.replay import attribute_by_default, estimates_table, replay, truth_series
     pr = load_problem(log, params=("box_mass", "box_friction"), prior=prior)
+    kw = dict(kw)
+    if kw.pop("as_mhe_replay", False) and attribute_by_default(pr, prior):  # its default on a noisy log, a belief given
+        kw.update(attribute=True, **replay_windows(True, {}))
     with MovingHorizonEstimator(pr.scene, pr.space, MHESettings(**{**kw, "seed": seed}),
                                 StateWeights.for_log(pr.traj), nthread=threads) as m:  # as mhe-replay does
         res = replay(pr.traj, m, realtime=realtime)
@@ -135,7 +139,7 @@ def main() -> None:
     ap.add_argument("--only", default=None, help="comma-separated config names to run (default: all)")
     a = ap.parse_args()
     from amhe_cli.estimation.mhe import REPLAY_SETTINGS
-    configs = {"default": {}, "mhe-replay": dict(REPLAY_SETTINGS)}
+    configs = {"default": {}, "mhe-replay": {**REPLAY_SETTINGS, "as_mhe_replay": True}}
     for c in a.config or []:
         name, _, body = c.partition(":")
         configs[name] = {k: eval(v) for k, v in (kv.split("=", 1) for kv in body.split(";") if kv)}

@@ -259,6 +259,43 @@ def step_mcap(step_log, tmp_path_factory):
     return path
 
 
+def test_mhe_replay_attributes_by_default_given_a_belief_and_noisy_poses(step_log, step_mcap, tmp_path):
+    """``mhe-replay`` attributes the mass and friction unless told (``--attribute/--no-attribute``) where a belief
+    is given, both are free and the box's poses were smoothed for their noise (motion capture), with the run's
+    windows; not on a clean log, without a belief, or with one of the two fixed."""
+    from dataclasses import replace as dc_replace
+    from amhe_cli.estimation.belief import Belief
+    from amhe_cli.estimation.mhe import REPLAY_SETTINGS, replay_windows
+    from amhe_cli.estimation.problem import load_problem
+    from amhe_cli.estimation.replay import attribute_by_default
+    rng = np.random.default_rng(0)
+    k = int(np.searchsorted(step_log.t, 6.0))  # the first pushes: decisions due, and short
+    cut = step_log.slice(0, k)
+    noisy = dc_replace(cut, box_pos=cut.box_pos + rng.normal(0, 0.001, cut.box_pos.shape),
+                       base_pos=cut.base_pos + rng.normal(0, 0.001, cut.base_pos.shape))
+    noisy_mcap = write_mcap(tmp_path / "noisy.mcap", noisy)
+    prior = Belief({"box_mass": 2.0, "box_friction": 0.3}, {"box_mass": 0.1, "box_friction": 0.015},
+                   free=["box_mass", "box_friction"]).save(tmp_path / "b.belief.yaml")
+    load = lambda log, params=("box_mass", "box_friction"): load_problem(str(log), params=params, prior=str(prior))  # noqa: E731
+    assert attribute_by_default(load(noisy_mcap), prior)
+    assert not attribute_by_default(load(step_mcap), prior)  # a clean log: the windows split it well
+    assert not attribute_by_default(load(noisy_mcap), None)  # no belief to hold the split
+    assert not attribute_by_default(load(noisy_mcap, ("box_mass",)), prior)
+    assert replay_windows(False, {"samples": None, "max_steps": None}) == {
+        "samples": REPLAY_SETTINGS["samples"], "max_steps": REPLAY_SETTINGS["max_steps"]}
+    assert replay_windows(True, {"samples": None, "max_steps": 99}) == {"samples": MHESettings.samples,
+                                                                         "max_steps": 99}
+    said = {}
+    for extra in ([], ["--no-attribute"]):
+        proc = subprocess.run([*AMHE, "mhe-replay", str(noisy_mcap), "--prior", str(prior), "--every", "1.0",
+                               "--out", str(tmp_path / f"e{len(extra)}.csv"), *extra], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        said[bool(extra)] = proc
+    assert "attributed by line decisions, with the run's windows (10 samples, 150 steps" in said[False].stderr
+    assert "line decisions" in said[False].stdout  # its summary counts them
+    assert "attributed by line decisions" not in said[True].stderr and "line decisions" not in said[True].stdout
+
+
 def test_cli_csv_and_mcap_round_trip(step_mcap, tmp_path):
     out, mcap, png = tmp_path / "est.csv", tmp_path / "est.mcap", tmp_path / "est.png"
     proc = subprocess.run([*AMHE, "mhe-replay", str(step_mcap), "--out", str(out), "--mcap", str(mcap),
