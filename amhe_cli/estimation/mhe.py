@@ -193,6 +193,7 @@ def replay_windows(attribute: bool, given: dict) -> dict:
     base = MHESettings() if attribute else MHESettings(**{k: REPLAY_SETTINGS[k] for k in ("samples", "max_steps")})
     return {k: (given.get(k) if given.get(k) is not None else getattr(base, k)) for k in ("samples", "max_steps")}
 
+
 #: The MHE on the wall clock (``run --target go1``, ``run --realtime``, a config's ``latency``), under a
 #: run config's ``mhe:`` keys: the library's steps and samples, fused. Sized so an update fits the
 #: estimator's core budget and every window is seen: ``mhe-replay``'s settings (20 samples, 300 steps)
