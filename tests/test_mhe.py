@@ -277,9 +277,10 @@ def test_mhe_replay_attributes_by_default_given_a_belief_and_noisy_poses(step_lo
     prior = Belief({"box_mass": 2.0, "box_friction": 0.3}, {"box_mass": 0.1, "box_friction": 0.015},
                    free=["box_mass", "box_friction"]).save(tmp_path / "b.belief.yaml")
     load = lambda log, params=("box_mass", "box_friction"): load_problem(str(log), params=params, prior=str(prior))  # noqa: E731
-    assert attribute_by_default(load(noisy_mcap), prior)
+    noisy_problem = load(noisy_mcap)  # each load fits the log's robot (rollouts): once per log and space
+    assert attribute_by_default(noisy_problem, prior)
     assert not attribute_by_default(load(step_mcap), prior)  # a clean log: the windows split it well
-    assert not attribute_by_default(load(noisy_mcap), None)  # no belief to hold the split
+    assert not attribute_by_default(noisy_problem, None)  # no belief to hold the split
     assert not attribute_by_default(load(noisy_mcap, ("box_mass",)), prior)
     assert replay_windows(False, {"samples": None, "max_steps": None}) == {
         "samples": REPLAY_SETTINGS["samples"], "max_steps": REPLAY_SETTINGS["max_steps"]}

@@ -183,9 +183,9 @@ class EstimatorThread:
         return self._hand_out(self._last)
 
     def _hand_out(self, res: Update) -> Update:
-        self._decided = self.mhe.decided
-        if res.skipped:
+        if res.skipped:  # the planner takes nothing from it: a decision finished meanwhile waits for poll_decision
             return res
+        self._decided = self.mhe.decided
         mean, std = self.mhe.stamp(res.mean, res.std)
         self._last = replace(res, mean=mean, std=std)
         return self._last
@@ -738,21 +738,20 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     pending = False
                 else:
                     res = estimator.poll_decision()
-                if res is not None:
-                    if not res.skipped and fresh:
+                if res is not None and not res.skipped:
+                    if fresh:
                         mhe_steps.append(res.steps)
                         mhe_compute.append(res.compute_time)
-                    if not res.skipped:
-                        window = None
-                        if view and res.window_mean is not None:
-                            own = replace(res, mean=res.window_mean)
-                            window = space.physical(_to_planner(own, estimator.mhe.space, space)[0])[0]
-                        swap(*_to_planner(res, estimator.mhe.space, space), now, window)
-                        tracker = estimator.mhe.tracker
-                        for d in tracker.decisions[n_decided:] if tracker is not None else []:
-                            if d.changed is not None:
-                                note(d.describe())
-                        n_decided = len(tracker.decisions) if tracker is not None else 0
+                    window = None
+                    if view and res.window_mean is not None:
+                        own = replace(res, mean=res.window_mean)
+                        window = space.physical(_to_planner(own, estimator.mhe.space, space)[0])[0]
+                    swap(*_to_planner(res, estimator.mhe.space, space), now, window)
+                    tracker = estimator.mhe.tracker
+                    for d in tracker.decisions[n_decided:] if tracker is not None else []:
+                        if d.changed is not None:
+                            note(d.describe())
+                    n_decided = len(tracker.decisions) if tracker is not None else 0
                 for text in estimator.take_errors():
                     warn(text)
                 if mhe_side is not None and not estimator.busy:
