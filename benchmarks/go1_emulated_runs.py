@@ -99,6 +99,8 @@ def run_records(path: str) -> dict:
     ``amhe_run_log``: its messages); {} if unreadable."""
     try:
         return {name: dict(rec) for name, rec in inspect_log(path).metadata.items()}
+    except ImportError:  # this machine cannot read any recording back: every row would lack its figures
+        raise
     except Exception:  # noqa: BLE001 - a run cut off before its recording closed
         return {}
 
@@ -112,6 +114,8 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
     from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic)."""
     try:
         t, est, labels = read_float_arrays(recording, "/amhe/estimate")
+    except ImportError:
+        raise
     except Exception as exc:  # noqa: BLE001 - no estimate recorded: say why in the run's row
         return [{"error": f"{type(exc).__name__}: {exc}"}]
     if not len(t):
@@ -191,7 +195,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                                             "--seed", str(seed), "--out", recording, "--force",
                                             *(["--config", args.config] if args.config else []),
                                             *(["--threads", str(args.threads)] if args.threads else []),
-                                            *shlex.split(args.run_args)],
+                                            *shlex.split(args.run_args.replace("{task}", task_name))],
                               capture_output=True, text=True, timeout=duration + 180)
         wall = time.monotonic() - t0
     finally:
@@ -259,6 +263,8 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                      for p, v, mono in events]
     try:
         res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run)
+    except ImportError:
+        raise
     except Exception as exc:  # noqa: BLE001 - a benchmark row says what went wrong rather than ending the grid
         res["mhe"] = [{"error": f"{type(exc).__name__}: {exc}"}]
     return res
@@ -335,7 +341,7 @@ def main() -> None:
                          "--emulator-args='--robot trunk_payload=1.5 --motor-strength 0.85' (kept in each row)")
     ap.add_argument("--run-args", default="",
                     help="more arguments for amhe run, given with '=': --run-args='--belief robot.belief.yaml' "
-                         "(kept in each row)")
+                         "(kept in each row); {task} stands for the run's task: --run-args='--belief {task}.belief.yaml'")
     ap.add_argument("--label", default=None,
                     help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
                          "rows with different labels apart")
@@ -373,8 +379,17 @@ def main() -> None:
     rows = []
     out = open(args.jsonl, "a") if args.jsonl else None
     with ThreadPoolExecutor(parallel) as pool:
-        for fut in as_completed([pool.submit(job, *j) for j in jobs]):
-            row = fut.result()
+        futures = [pool.submit(job, *j) for j in jobs]
+        for fut in as_completed(futures):
+            try:
+                row = fut.result()
+            except ImportError as exc:
+                # every row would lack its replanning rate and MHE errors (a lent host without backports.zstd
+                # ran 50 runs so): stop at the first, not at the end of the grid
+                for f in futures:
+                    f.cancel()
+                sys.exit(f"cannot read a run's recording back on this machine ({type(exc).__name__}: {exc}); "
+                         "install amhe with its dependencies (pip install .) and run the grid again")
             rows.append(row)
             line = json.dumps(row)
             print(line, flush=True)
