@@ -45,6 +45,10 @@ then one row per (task, mode):
 
 A grid cut off keeps every finished run in ``--jsonl``; ``--table`` prints the table of
 such files (several calls' rows together) without running anything.
+
+Clients and emulators run the ``amhe_cli`` this script imported (:func:`amhe_cli.cli.child_command`), not the
+working directory's, so ``PYTHONPATH=OTHER python benchmarks/go1_emulated_runs.py --label other`` runs OTHER's
+code from any folder. (Before stop 67 a plain ``python -c`` ran the working directory's under every label.)
 """
 
 from __future__ import annotations
@@ -63,11 +67,12 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from queue import Queue
 
 import numpy as np
+from amhe_cli.cli import child_command
 from amhe_cli.control.tasks import get_task
 from amhe_cli.io.reader import inspect_log, read_float_arrays
 from mhe_accuracy import MASS_BOUND, MU_BOUND, held_from, within_bounds  # benchmarks/: the issue's bounds
 
-AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+AMHE = child_command()
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")

@@ -49,6 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
+from amhe_cli.cli import child_command
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
@@ -73,7 +75,7 @@ def emit(line: str) -> None:
 
 
 #: the CLI as a user runs it, in a fresh process
-AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+AMHE = child_command()
 
 
 def phases(timing: dict) -> str:

@@ -38,7 +38,9 @@ import time
 
 import numpy as np
 
-AMHE = [sys.executable, "-c", "from amhe_cli.cli import main; main()"]
+from amhe_cli.cli import child_command
+
+AMHE = child_command()
 
 
 def free_port(kind=socket.SOCK_DGRAM) -> int:

@@ -47,6 +47,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None)
     args = ap.parse_args()
 
+    from amhe_cli.cli import child_command
     from amhe_cli.control.closed_loop import RunSettings, make_planner, task_scene_config
     from amhe_cli.control.tasks import get_task
     from amhe_cli.estimation.belief import Belief
@@ -62,7 +63,7 @@ def main() -> None:
                            planner=PlannerSettings.from_dict(REALTIME_PLANNER))
     port, pose_port = free_port(), free_port()
     rec = os.path.join(tempfile.mkdtemp(), "rx.csv")
-    emu = subprocess.Popen([sys.executable, "-c", "from amhe_cli.cli import main; main()", "emulate", "go1",
+    emu = subprocess.Popen([*child_command(), "emulate", "go1",
                             "--task", "t1", "--port", str(port), "--pose-to", f"127.0.0.1:{pose_port}",
                             "--record", rec, "--duration", str(2 * args.seconds + 15)],
                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)

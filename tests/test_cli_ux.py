@@ -318,3 +318,17 @@ def test_mhe_replay_defines_its_tracking_error(capsys, tmp_path, example):
     assert code == 0, err
     s = json.loads(out)
     assert s["tracking_error_units"]["box_mass"] == "% of truth" and "tracking_error_definition" in s
+
+
+def test_a_child_command_runs_this_amhe_not_the_one_in_its_working_directory(tmp_path):
+    """``child_command()`` (what the benchmarks start clients and emulators with) imports the ``amhe_cli`` this
+    process runs; a plain ``python -c`` from a folder holding another ``amhe_cli`` imports that one."""
+    from amhe_cli import __version__
+    from amhe_cli.cli import child_command
+    (tmp_path / "amhe_cli").mkdir()
+    (tmp_path / "amhe_cli" / "__init__.py").write_text("raise SystemExit('the other amhe_cli')\n")
+    ours = subprocess.run([*child_command(), "--version"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert ours.returncode == 0 and __version__ in ours.stdout, ours.stderr
+    plain = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "--version"], cwd=tmp_path,
+                           capture_output=True, text=True, timeout=60)
+    assert plain.returncode != 0 and "the other amhe_cli" in plain.stderr

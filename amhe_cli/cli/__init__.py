@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import sys
 import warnings
+from pathlib import Path
 
 import click
 
@@ -79,6 +80,18 @@ def cli():
     for a first belief, and push boxes with an adaptive sampling MPC.
     """
 
+
+
+def child_command() -> list[str]:
+    """The argv prefix that runs this very ``amhe`` in a child process: ``sys.executable -c …`` with the folder
+    holding the ``amhe_cli`` this process imported first on the child's ``sys.path``.
+
+    ``python -c`` puts the working directory first, so from a checkout a child would import the checkout's
+    ``amhe_cli`` even where this process runs another (a variant's tree on ``PYTHONPATH``, as a benchmark
+    compares two codes). *Found* in stop 67: ``benchmarks/go1_emulated_runs.py``'s clients and emulators, run
+    from the repository's root, ran the working tree's code under every variant's label."""
+    root = str(Path(__file__).resolve().parents[2])
+    return [sys.executable, "-c", f"import sys; sys.path.insert(0, {root!r}); from amhe_cli.cli import main; main()"]
 
 
 def main(argv=None) -> None:
