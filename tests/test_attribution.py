@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import (BACK, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE, RETRY, SHIFT,
-                                            SPAN, SplitTracker, line_minimum, locate)
+from amhe_cli.estimation.attribution import (BACK, CHANGE, DETECT, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE,
+                                            RETRY, SHIFT, SPAN, SplitTracker, line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -247,6 +247,51 @@ def test_the_windows_still_following_an_attributed_change_open_no_new_one_for_a_
         assert tr.pending is None
     assert tr.product.restarts > restarts
     assert tr.ref == pytest.approx((4.0, d.friction))
+
+
+def test_two_successive_change_tests_that_read_the_force_moved_the_same_way_open_a_change_before_them():
+    tr = tracker()
+    P = tr.test_candidates(np.array([9.0, 9.0, 0.3]))
+    r = np.exp(CHANGE)
+    np.testing.assert_allclose(P[:, :2], [[4, 0.5], [4 * r, 0.5], [4 / r, 0.5], [4, 0.5 * r], [4, 0.5 / r]])
+    assert np.all(P[:, 2] == 0.3)  # the other parameters as given
+    J = lambda gain_up, gain_down=-0.5: np.array([100.0, 100 * (1 - gain_up), 150, 100 * (1 - gain_up) + 5,  # noqa: E731
+                                                  100 * (1 - gain_down)])
+    assert not tr.test(5.0, J(DETECT + 0.05))  # one test alone opens nothing
+    assert not tr.test(5.5, J(DETECT - 0.05))  # one below the threshold forgets it
+    assert not tr.test(6.0, J(DETECT + 0.05))
+    assert not tr.test(6.5, J(-0.5, DETECT + 0.1))  # the force read the other way: starts afresh
+    assert tr.pending is None
+    assert tr.test(7.0, J(-0.5, DETECT + 0.05))  # a second down in a row: opened
+    assert tr.pending == (5.5, (4.0, 0.5)) and tr.seen == pytest.approx(1.5)
+    assert tr.due() == (5.5, "provisional")  # its first decision right away, on the data after it
+    assert not tr.test(7.5, J(0.5)) and not tr.test(8.0, J(0.5))  # a change pending: tests open none
+    tr.pending, tr.quiet_until = None, 9.0  # a change just moved the reference: quiet
+    assert not tr.test(8.5, J(0.5)) and not tr.test(9.0 - 1e-6, J(0.5))
+    assert tr.test(9.0, J(0.5)) is False and tr.test(9.5, J(0.5)) and tr.pending[0] == pytest.approx(8.0)
+    fresh = tracker()
+    for t in (1.0, 1.5):  # the held split diverged: no reading, however the others score
+        assert not fresh.test(t, np.array([np.inf, 1.0, 1.0, 1.0, 1.0]))
+    assert fresh.pending is None
+
+
+def test_a_change_s_readings_of_the_parameter_it_moved_are_averaged_by_the_data_each_saw():
+    tr = tracker()
+    tr.open(10.0, 1.5)
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(11.5, "provisional", P, cost(P, 6.6, 0.5))
+    assert d.changed == "box_mass" and tr.ref[0] == pytest.approx(6.6, rel=1e-6)
+    tr.seen = SPAN
+    P = tr.candidates(np.zeros(2))
+    d = tr.decide(12.0, "change", P, cost(P, 5.4, 0.5))
+    mean = np.exp((1.5 * np.log(6.6) + SPAN * np.log(5.4)) / (1.5 + SPAN))  # one draw of clips alone: 5.4 kg
+    assert d.changed == "box_mass" and tr.ref == pytest.approx((mean, 0.5), rel=1e-6) and tr.pending is None
+    tr.open(20.0, 1.0)
+    P = tr.candidates(np.zeros(2))
+    tr.decide(21.0, "provisional", P, cost(P, 8.0, 0.5))
+    assert len(tr.readings) == 1
+    tr.relocate(20.0 + 2 * SHIFT)  # placed later: the readings before were of data before it
+    assert tr.readings == [] and not tr.evidence.any()
 
 
 def test_a_span_that_straddles_a_change_opens_one_from_its_middle_and_moves_nothing():

@@ -165,6 +165,39 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
 
 
 
+def test_each_window_s_data_is_tested_and_two_tests_open_the_friction_step_for_its_decision(step_log, monkeypatch):
+    """The change test (:meth:`SplitTracker.test`) on real rollouts, the windows' own change detection off: from
+    the truth before the friction step, no test opens a change; after it, two successive windows' tests read
+    the force moved up and open the change before them, and its first decision gives it to the friction."""
+    from amhe_cli.estimation import attribution, fusion, mhe as mhe_module
+    monkeypatch.setattr(attribution, "PERIOD", 1e9)  # no periodic decision: only a change makes one
+    for name, n in (("TEST_CLIPS", 8), ("ATTRIBUTION_CLIPS", 12), ("LOCATE_CLIPS", 16)):  # a clean log: fewer do
+        monkeypatch.setattr(mhe_module, name, n)
+    monkeypatch.setattr(fusion, "GATE", np.inf)  # nor the windows' product
+    monkeypatch.setattr(fusion, "CUSUM_H", np.inf)
+    opened = []
+    real = attribution.SplitTracker.test
+    monkeypatch.setattr(attribution.SplitTracker, "test",
+                        lambda self, t, J: opened.append(t) if real(self, t, J) else False)
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    mu = step_log.meta["truth_series"]["box_friction"]
+    t_step = float(step_log.t[np.argmax(mu > 0.45)])
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1)) as mhe:
+        tr = mhe.tracker
+        for t in np.arange(t_step - 1.0, t_step + 3.0, 0.5):
+            mhe.update(step_log, t)
+            if tr.decisions:
+                break
+    # the box rests from the step to 0.7 s after it: two windows with its data, then the change, located before
+    assert opened and t_step < opened[0] <= t_step + 2.5 and tr.product.restarts == 0
+    d = tr.decisions[0]
+    assert d.t == opened[0] and t_step - 0.5 < d.since < opened[0] - 0.5
+    assert d.reason in ("provisional", "change") and d.changed == "box_friction" and d.mass == 2.0
+    assert abs(d.friction - 0.6) < 0.1
+
+
 def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_loop_when_it_finishes(
         step_log, monkeypatch):
     """``concurrent`` (``run`` on the wall clock, decisions on a backend of their own): the windows go on while a

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, LOCATE_CLIPS, LOOKBACK, NAMES as SPLIT_NAMES,
-                                             SplitTracker, locate)
+                                             TEST_CLIPS, SplitTracker, locate)
 from amhe_cli.estimation.clips import rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
@@ -134,7 +134,9 @@ class MHESettings:
             (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips, and
             a change's first one 23 × 48 before them to locate it; the first 3–6 s of a CPU core, 0.2–0.25 s
             on an H100/H200 GPU) where a window is many small ones
-            (faster on the CPU): ``cuda`` here keeps the windows on the CPU and sends the decisions to the GPU,
+            (faster on the CPU), and each window's change test one of 5 candidates × 16 clips
+            (:meth:`~amhe_cli.estimation.attribution.SplitTracker.test`): ``cuda`` here keeps the windows on the CPU
+            and sends the decisions and tests to the GPU,
             where on the wall clock each runs on a thread of its own (:attr:`MovingHorizonEstimator.concurrent`).
     """
 
@@ -428,9 +430,10 @@ class MovingHorizonEstimator:
         return self._decider is not None and self._decider.is_alive()
 
     def _attribute(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray) -> None:
-        """Feed the window (d,) ending at ``t`` [s] to the tracker (``settings.attribute``) and make a due line
-        decision: here, or on a thread of its own (:attr:`concurrent`). While one runs there, the tracker is its
-        alone: the window waits in a queue, fused in order once the decision is in."""
+        """Feed the window (d,) ending at ``t`` [s] to the tracker (``settings.attribute``); then a change test
+        of its data where no decision is due (:meth:`SplitTracker.test`), and the decision due (after it): here,
+        or on a thread of its own (:attr:`concurrent`). While one runs there, the tracker is its alone: the
+        window waits in a queue, fused in order once the decision is in."""
         tr = self.tracker
         if self.deciding:
             self._queued.append((float(t), mu.copy()))
@@ -442,21 +445,35 @@ class MovingHorizonEstimator:
             tr.fuse(tq, mq)
         self._queued.clear()
         tr.fuse(t, mu)
-        due = tr.due()
         aside = self.concurrent and self._decide_pool is not None  # the windows' pool serves one thread
-        if due is not None and not aside:
-            self._decide(traj, stop, t, *due, self.mean.copy(), self.rng)
+        job = (traj, stop, t, self.mean.copy(), self._decide_rng if aside else self.rng)
+        if not aside:
+            self._test_and_decide(*job)
         self._publish()
-        if due is not None and aside:
+        if aside and (tr.due() is not None or tr.testing(t)):
             self._decider = threading.Thread(target=self._decide_aside, name="amhe-mhe-decide", daemon=True,
-                                             args=(traj, stop, t, *due, self.mean.copy(), self._decide_rng))
+                                             args=job)
             self._decider.start()
 
+    def _test_and_decide(self, traj: Trajectory, stop: int, t: float, base: np.ndarray,
+                         rng: np.random.Generator) -> None:
+        """At the window ending at sample ``stop`` (time ``t`` [s]): a change test of its data where no decision
+        is due and a change may open, then the decision due, if any (``base`` (d,) holds the other parameters;
+        clips drawn with ``rng``)."""
+        tr = self.tracker
+        if tr.due() is None and tr.testing(t):
+            clips = self._decision_clips(traj, stop, t - self.settings.window, TEST_CLIPS, rng)
+            if clips is not None:
+                tr.test(t, self._decision_cost(clips).evaluate(tr.test_candidates(base)).data)
+        due = tr.due()
+        if due is not None:
+            self._decide(traj, stop, t, *due, base, rng)
+
     def _decide_aside(self, *job) -> None:
-        """:meth:`_decide` on its own thread: a failure is recorded (:attr:`decision_errors`), the reference
-        kept; either way the split it leaves is published (:attr:`decided`)."""
+        """:meth:`_test_and_decide` on its own thread: a failure is recorded (:attr:`decision_errors`), the
+        reference kept; either way the split it leaves is published (:attr:`decided`)."""
         try:
-            self._decide(*job)
+            self._test_and_decide(*job)
         except Exception as exc:  # noqa: BLE001 - the windows and the planner go on with the reference as it was
             with self._lock:
                 self.decision_errors.append(f"t={job[2]:.2f} s: MHE line decision failed ({type(exc).__name__}: "
