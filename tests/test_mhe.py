@@ -321,7 +321,7 @@ def test_mhe_replay_attributes_by_default_given_a_belief_and_noisy_poses(step_lo
                                                                          "max_steps": 99}
     said = {}
     for extra in ([], ["--no-attribute"]):
-        proc = subprocess.run([*AMHE, "mhe-replay", str(noisy_mcap), "--prior", str(prior), "--every", "1.0",
+        proc = subprocess.run([*AMHE, "mhe-replay", str(noisy_mcap), "--prior", str(prior), "--every", "2.0",
                                "--out", str(tmp_path / f"e{len(extra)}.csv"), *extra], capture_output=True, text=True)
         assert proc.returncode == 0, proc.stderr[-2000:]
         said[bool(extra)] = proc

@@ -321,12 +321,12 @@ class SplitTracker:
 
         The windows chain their estimates (``p̂⁻``, eq. 4), so their product follows a change over seconds
         (:meth:`fuse`); this test starts from the split held each time. *Measured* on four fresh noisy T3/T4
-        recordings (16 clips of the last second, the truth before the change held): the best moved candidate
-        beat the held split by +0.18 to +0.58 of its cost in every window from 1–1.5 s after the change until
-        the box next rested, by at most +0.35 in a window before it, and by more than 0.15 in two successive
-        ones the same way twice in 54 windows before the changes. A change opened so where the force did not
-        move is read unchanged by its decision, and averaged in (:meth:`decide`) (docs/evaluation.md "A change
-        test on each window's data")."""
+        recordings (``benchmarks/change_test.py``: 16 clips of the last second, the truth before the change
+        held): the best moved candidate beat the held split by +0.19 to +0.58 of its cost in every window from
+        the first ending 0.7–1.3 s after the change until the box next rested, by at most +0.35 in a window
+        before it, and by more than 0.15 in two successive ones the same way twice in 56 windows before it. A
+        change opened so where the force did not move is read unchanged by its decision, and averaged in
+        (:meth:`decide`) (docs/evaluation.md "A change test on each window's data")."""
         J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
         if not np.isfinite(J[0]) or J[0] <= 0:
             self.tested = None
