@@ -29,12 +29,9 @@ NAMES = ("box_mass", "box_friction")
 
 def one(job: tuple) -> dict:
     """One (log, draw): the change test at every window of the log."""
-    from amhe_cli.errors import AmheError
-    from amhe_cli.estimation.attribution import DETECT, SplitTracker
-    from amhe_cli.estimation.clips import rest_travel, sample_clips
+    from amhe_cli.estimation.attribution import DETECT, SplitTracker, test_reading
     from amhe_cli.estimation.cost import RolloutCost, StateWeights
-    from amhe_cli.estimation.identify import clip_plan
-    from amhe_cli.estimation.mhe import MHESettings
+    from amhe_cli.estimation.mhe import MHESettings, decision_clips
     from amhe_cli.estimation.problem import load_problem
     from amhe_cli.estimation.replay import truth_series
     warnings.simplefilter("ignore")
@@ -52,26 +49,22 @@ def one(job: tuple) -> dict:
                            pr.space.scale * s.sigma_init, s.sigma_floor, s.window)
     tracker.ref = tuple(held)
     P = tracker.test_candidates(pr.space.mean0)
-    _, horizon, _ = clip_plan(traj)
     rng = np.random.default_rng(draw)
     weights = StateWeights.for_log(traj)
     windows, cost = [], None
     for t in np.arange(s.window, float(traj.t[-1]), s.every):
         stop = int(np.searchsorted(traj.t, t, side="right"))
-        try:
-            clips = sample_clips(traj, pr.scene, n_clips, horizon, rng, (t - s.window, float(traj.t[stop - 1])),
-                                 s.min_speed, rest_travel(traj))
-        except AmheError:
+        clips = decision_clips(traj, pr.scene, stop, t - s.window, n_clips, rng, s.min_speed)
+        if clips is None:
             windows.append([round(float(t), 2), None, 0])  # the box at rest
             continue
         if cost is None:
             cost = RolloutCost(pr.scene, pr.space, clips, weights, nthread=1)
         else:
             cost.set_clips(clips, weights)
-        J = np.asarray(cost.evaluate(P).data, dtype=float)
-        gain = (J[0] - J[1:]) / J[0]
-        up, down = max(gain[0], gain[2]), max(gain[1], gain[3])
-        windows.append([round(float(t), 2), round(float(max(up, down)), 3), 1 if up >= down else -1])
+        reading = test_reading(cost.evaluate(P).data)
+        windows.append([round(float(t), 2), None if reading is None else round(reading[0], 3),
+                        0 if reading is None else reading[1]])
     if cost is not None:
         cost.close()
     before = [w for w in windows if w[0] <= t_c and w[1] is not None]

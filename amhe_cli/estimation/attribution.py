@@ -228,6 +228,18 @@ def locate(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -
     return int(np.argmax(gain[:last + 1]))
 
 
+def test_reading(J: np.ndarray) -> tuple[float, int] | None:
+    """What a change test's data costs ``J`` (5,), in :meth:`SplitTracker.test_candidates`' order, read: ``(gain,
+    direction)``, the best moved candidate's cost below the held split's as a share of it, and +1 where it moved
+    the friction force up, −1 down; None where the held split's cost is not finite and positive."""
+    J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
+    if not np.isfinite(J[0]) or J[0] <= 0:
+        return None
+    gain = (J[0] - J[1:]) / J[0]
+    up, down = max(gain[0], gain[2]), max(gain[1], gain[3])
+    return (float(up), 1) if up >= down else (float(down), -1)
+
+
 class SplitTracker:
     """The reported mass and friction: a reference moved by line decisions, changes detected by the
     windows' product (module doc).
@@ -327,18 +339,12 @@ class SplitTracker:
         before it, and by more than 0.15 in two successive ones the same way twice in 56 windows before it. A
         change opened so where the force did not move is read unchanged by its decision, and averaged in
         (:meth:`decide`) (docs/evaluation.md "A change test on each window's data")."""
-        J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
-        if not np.isfinite(J[0]) or J[0] <= 0:
+        reading = test_reading(J)
+        if reading is None or reading[0] < DETECT or not self.testing(t):
             self.tested = None
             return False
-        gain = (J[0] - J[1:]) / J[0]
-        up, down = max(gain[0], gain[2]), max(gain[1], gain[3])
-        direction = 1 if up >= down else -1
-        if max(up, down) < DETECT or not self.testing(t):
-            self.tested = None
-            return False
-        last, self.tested = self.tested, (float(t), direction)
-        if last is None or last[1] != direction:
+        last, self.tested = self.tested, (float(t), reading[1])
+        if last is None or last[1] != reading[1]:
             return False
         w = self.product.window
         self.open(last[0] - w, w + min(float(t) - last[0], w))

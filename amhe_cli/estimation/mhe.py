@@ -226,6 +226,21 @@ def rested(idle: float, compute_time: float, duty: float) -> bool:
     return idle >= compute_time * (1.0 / duty - 1.0)
 
 
+def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
+                   min_speed: float):
+    """``n`` clips of a line decision or change test (:mod:`~amhe_cli.estimation.attribution`), drawn with ``rng``
+    as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, starting where the box moves
+    faster than ``min_speed`` [m/s]; None where not a clip's worth is in yet (the next update tries again)."""
+    _, horizon, _ = clip_plan(traj)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
+            return sample_clips(traj, scene, n, horizon, rng, (since, float(traj.t[stop - 1])), min_speed,
+                                rest_travel(traj))
+    except AmheError:
+        return None
+
+
 @dataclass
 class Update:
     """One MHE update.
@@ -553,16 +568,8 @@ class MovingHorizonEstimator:
         return text
 
     def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):
-        """``n`` clips drawn with ``rng`` as ``identify`` draws them (its horizons) from ``since`` [s] to sample
-        ``stop``, or None where not a clip's worth is in yet (the next update tries again)."""
-        _, horizon, _ = clip_plan(traj)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
-                return sample_clips(traj, self.scene, n, horizon, rng, (since, float(traj.t[stop - 1])),
-                                    self.settings.min_speed, rest_travel(traj))
-        except AmheError:
-            return None
+        """:func:`decision_clips` of this estimator's scene and ``min_speed``."""
+        return decision_clips(traj, self.scene, stop, since, n, rng, self.settings.min_speed)
 
     def _decision_cost(self, clips) -> RolloutCost:
         """The cost a line decision scores ``clips`` with: the windows' own, or with ``attribute_device`` one
