@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from amhe_cli.estimation.clips import ROLES, choose_informative, make_clips, sample_clips
+from amhe_cli.estimation.clips import ROLES, choose_informative, join_clips, make_clips, sample_clips
 from amhe_cli.estimation.cost import DEFAULT_SIGMA, RolloutCost, StateWeights
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.identify import IdentifySettings, identify
@@ -308,6 +308,21 @@ def test_make_clips_alignment(traj, scene):
     assert c.steps == horizons.sum()
     with pytest.raises(AmheError):
         make_clips(traj, scene, [len(traj) - 5], [10])
+
+
+def test_join_clips_keeps_each_clip_and_says_where_each_part_went(traj, scene):
+    a = make_clips(traj, scene, [700, 1500], [60, 30])
+    b = make_clips(traj, scene, [10, 900, 1600], [5, 20, 40])
+    both, (ia, ib) = join_clips(traj, scene, a, b)
+    assert list(both.start) == [10, 700, 900, 1500, 1600] and list(ia) == [1, 3] and list(ib) == [0, 2, 4]
+    for part, index in ((a, ia), (b, ib)):
+        np.testing.assert_array_equal(both.start[index], part.start)
+        np.testing.assert_array_equal(both.horizon[index], part.horizon)
+        for k, i in enumerate(index):  # the same clip, padded to the longer batch's horizon
+            h = part.horizon[k]
+            np.testing.assert_array_equal(both.qpos[i, :h], part.qpos[k, :h])
+            np.testing.assert_array_equal(both.control[i, :h], part.control[k, :h])
+            np.testing.assert_array_equal(both.initial_state[i], part.initial_state[k])
 
 
 def test_rollout_matches_mj_step_replay(cost, clips, scene, traj):

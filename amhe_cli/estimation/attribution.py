@@ -323,13 +323,23 @@ class SplitTracker:
         P[:, self.iu] = [mu, mu, mu, mu * r, mu / r]
         return P
 
-    def test(self, t: float, J: np.ndarray) -> bool:
+    def test_search_from(self) -> float | None:
+        """Start [s] of the data the next change test also scores, to place the change it may open
+        (:meth:`test`'s ``located``): where the last test passed :data:`DETECT`, :data:`BACK` seconds before
+        that test's window (where a decision would seek the change it opens, :meth:`search_from`), not before the
+        reference's last change; else None."""
+        if self.tested is None or self.pending is not None:
+            return None
+        return max(self.tested[0] - self.product.window - BACK, self.floor, 0.0)
+
+    def test(self, t: float, J: np.ndarray, located: float | None = None) -> bool:
         """Take a change test of the window ending at ``t`` [s]: ``J`` (5,) the data costs of
         :meth:`test_candidates` on :data:`TEST_CLIPS` clips drawn from the window's data. The friction force
         moved where a candidate that moves it beats the held split by :data:`DETECT` of its cost; two
         successive tests so, in the same direction, open a change from the start of the first one's window,
-        its data counted as seen (decided then on the data after it, located first). Returns whether it opened
-        one.
+        its data counted as seen (decided then on the data after it, located first), or from ``located`` [s]
+        where given (the change placed by this test's own clips over :meth:`test_search_from`'s data, so its
+        first decision need not seek it). Returns whether it opened one.
 
         The windows chain their estimates (``p̂⁻``, eq. 4), so their product follows a change over seconds
         (:meth:`fuse`); this test starts from the split held each time. *Measured* on four fresh noisy T3/T4
@@ -348,6 +358,8 @@ class SplitTracker:
             return False
         w = self.product.window
         self.open(last[0] - w, w + min(float(t) - last[0], w))
+        if located is not None:
+            self.relocate(min(float(located), float(t)))
         return True
 
     def due(self) -> tuple[float, str] | None:

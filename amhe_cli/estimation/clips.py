@@ -107,6 +107,19 @@ def make_clips(traj: Trajectory, scene: Scene, starts, horizons) -> Clips:
     return Clips(starts, horizons, initial, control, qpos, qvel, observed, float(traj.dt))
 
 
+def join_clips(traj: Trajectory, scene: Scene, *parts: Clips) -> tuple[Clips, list[np.ndarray]]:
+    """The clips of ``parts`` (each cut from ``traj``) as one batch in time order, padded to the longest horizon:
+    ``(clips, index)``, ``index[i]`` the positions (n_i,) of part ``i``'s clips in it."""
+    starts = np.concatenate([p.start for p in parts])
+    horizons = np.concatenate([p.horizon for p in parts])
+    order = np.argsort(starts, kind="stable")
+    position = np.empty_like(order)
+    position[order] = np.arange(order.size)
+    bounds = np.cumsum([0] + [len(p) for p in parts])
+    return (make_clips(traj, scene, starts[order], horizons[order]),
+            [position[a:b] for a, b in zip(bounds[:-1], bounds[1:])])
+
+
 #: Lever arm [m] that turns the box's yaw rate into a speed in :func:`excitation` and :func:`box_travel`
 #: (half the edge of the default 0.38 m box: how fast its sides move when it turns).
 LEVER = 0.19
