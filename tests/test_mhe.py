@@ -209,8 +209,10 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     split kept; a model edit meanwhile reaches the decisions' backend only after it."""
     import threading
     from amhe_cli.control.closed_loop import EstimatorThread
-    from amhe_cli.estimation import attribution
+    from amhe_cli.estimation import attribution, mhe as mhe_module
     monkeypatch.setattr(attribution, "PERIOD", 1.0)
+    for name, n in (("TEST_CLIPS", 8), ("ATTRIBUTION_CLIPS", 12), ("LOCATE_CLIPS", 16)):  # decisions of a CPU
+        monkeypatch.setattr(mhe_module, name, n)  # backend: seconds each at full size, and the log is 12 s long
     scene = Scene(SceneConfig())
     space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
                            prior_std={"box_mass": 0.1, "box_friction": 0.015})
@@ -285,11 +287,14 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     est.close()
 
 
-def test_a_window_s_change_test_starts_with_its_update_beside_the_window_s_solve(step_log, monkeypatch):
-    """``concurrent``: the change test of a window starts on the decisions' thread when its update starts, not after
-    the window's solve (which it does not need), so the solve's time is not between the data and a change it opens:
-    held there, the window solves meanwhile and waits in the queue, fused once the test is in."""
+def test_a_window_s_decision_and_change_test_start_with_its_update_beside_the_window_s_solve(step_log, monkeypatch):
+    """``concurrent``: a window's data count as soon as its update starts, and the decision they make due, or else
+    the window's change test, starts then on the decisions' thread, not after the window's solve (which neither
+    needs), so the solve's time is not between the data and the planner: held there, the window solves meanwhile
+    and waits in the queue, fused once the thread is done."""
     import threading
+    from amhe_cli.estimation import attribution
+    monkeypatch.setattr(attribution, "PERIOD", 1.0)  # the first window's second of data makes a decision due
     scene = Scene(SceneConfig())
     space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
                            prior_std={"box_mass": 0.1, "box_friction": 0.015})
@@ -298,7 +303,7 @@ def test_a_window_s_change_test_starts_with_its_update_beside_the_window_s_solve
     real = MovingHorizonEstimator._test_and_decide
 
     def held(self, traj, stop, t, base, rng, test=True):
-        calls.append((float(t), test, self.window_mean.copy()))
+        calls.append((float(t), self.tracker.due(), self.window_mean.copy()))
         assert gate.wait(60)
         return real(self, traj, stop, t, base, rng, test)
 
@@ -306,15 +311,21 @@ def test_a_window_s_change_test_starts_with_its_update_beside_the_window_s_solve
     with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
                                                           attribute_device="cpu")) as mhe:
         mhe.concurrent = True
-        before = mhe.window_mean.copy()
-        u = mhe.update(step_log, t_push)
-        assert not u.skipped and [c[:2] for c in calls] == [(u.t, True)]
-        np.testing.assert_array_equal(calls[0][2], before)  # started before the window's solve
-        assert mhe.deciding and [q[0] for q in mhe._queued] == [u.t] and mhe.tracker.last is None
-        gate.set()
-        mhe._decider.join(60)
-        nxt = mhe.update(step_log, t_push + 0.5)  # the window fused first, then the next one's test starts
-        assert mhe.tracker.last in (u.t, nxt.t) and calls[1][:2] == (nxt.t, True)
+        tr = mhe.tracker
+        for k, t in enumerate((t_push, t_push + 0.5)):
+            gate.clear()
+            before = mhe.window_mean.copy()
+            u = mhe.update(step_log, t)
+            assert not u.skipped and len(calls) == k + 1 and calls[k][0] == u.t and tr.last == u.t
+            np.testing.assert_array_equal(calls[k][2], before)  # started before the window's solve
+            assert mhe.deciding and [q[0] for q in mhe._queued] == [u.t]  # solved meanwhile, waiting
+            gate.set()
+            mhe._decider.join(60)
+            if k == 0:  # the first: the periodic decision its data made due, on data to the window's end
+                assert calls[0][1] == (t_push - 1.0, "period") and len(tr.decisions) == 1
+                assert tr.decisions[0].t == u.t
+            else:  # the next: its change test (no decision due), the window before fused first
+                assert calls[1][1] is None and len(tr.decisions) == 1 and calls[0][0] in tr.product.times
 
 
 # -- outputs and errors through the CLI ------------------------------------------

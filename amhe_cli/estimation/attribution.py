@@ -299,14 +299,22 @@ class SplitTracker:
         first = held[0][0] if held else float(t)
         restarts = self.product.restarts
         self.product.update(t, np.array([float(window_mean[self.im] * window_mean[self.iu])]))
+        self.advance(t)
+        w = self.product.window
+        if self.product.restarts > restarts and self.pending is None and t >= self.quiet_until:
+            self.open(first, min(t - first, w))
+
+    def advance(self, t: float) -> None:
+        """Count the new data of the informative window ending at ``t`` [s] as seen (since the last informative
+        one, at most a window's length), once: :meth:`fuse` calls it too, and a window's data are in before its
+        solve (the decision it makes due may start with it)."""
+        if self.last is not None and float(t) <= self.last:
+            return
         w = self.product.window
         if self.since is None:
             self.since = float(t) - w
-        # new data this window brought: since the last informative one, at most a window's length
-        self.seen += w if self.last is None else min(t - self.last, w)
+        self.seen += w if self.last is None else min(float(t) - self.last, w)
         self.last = float(t)
-        if self.product.restarts > restarts and self.pending is None and t >= self.quiet_until:
-            self.open(first, min(t - first, w))
 
     def testing(self, t: float) -> bool:
         """Whether a change test (:meth:`test`) at the window ending at ``t`` [s] may open a change: none pending,
