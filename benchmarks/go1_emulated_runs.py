@@ -169,6 +169,15 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
     return out
 
 
+def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> str:
+    """File name of one run's recording in ``--out-dir``: ``go1_TASK_MODE_sSEED[_LABEL].mcap``, the label's
+    characters outside ``[A-Za-z0-9.-]`` as ``_``. Without the label, two grids run side by side into one folder
+    with the same task and seed (two codes compared run for run) wrote one file at once: 6 of 48 runs lost their
+    recording or read the other's half-written one (stop 68)."""
+    tag = "" if not label else "_" + re.sub(r"[^A-Za-z0-9.-]", "_", label)
+    return f"go1_{task_name}_{mode}_s{seed}{tag}.mcap"
+
+
 def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], list[int]]) -> dict:
     """One emulator + client pair; ``cores``: the client's CPUs and the emulator's own (empty: the client's)."""
     client, robot = cores
@@ -176,7 +185,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     pin_emu = ["taskset", "-c", ",".join(map(str, robot or client))]
     pose = free_port()
     duration = args.duration or get_task(task_name).duration  # the task's own limit unless given
-    recording = os.path.join(args.out_dir, f"go1_{task_name}_{mode}_s{seed}.mcap")
+    recording = os.path.join(args.out_dir, recording_name(task_name, mode, seed, args.label))
     emu = subprocess.Popen(pin_emu + AMHE + ["emulate", "go1", "--task", task_name, "--port", "0", "--pose-to",
                                          f"127.0.0.1:{pose}", "--duration", str(duration + 30), "--seed",
                                          str(seed), "--pose-noise", args.pose_noise,
@@ -331,7 +340,9 @@ def main() -> None:
                          "default 1 where the machine has a CPU to spare, else 0)")
     ap.add_argument("--parallel", type=int, default=None,
                     help="pairs at once (default: CPUs // (--cores-per-run + --emulator-cores))")
-    ap.add_argument("--out-dir", default=".")
+    ap.add_argument("--out-dir", default=".",
+                    help="folder of the runs' recordings, go1_TASK_MODE_sSEED[_LABEL].mcap (grids side by side "
+                         "into one folder need labels of their own)")
     ap.add_argument("--jsonl", default=None, help="append each run's JSON line here as it finishes")
     ap.add_argument("--config", default=None, help="run config YAML passed to amhe run")
     ap.add_argument("--threads", type=int, default=None,

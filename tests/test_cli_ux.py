@@ -332,3 +332,18 @@ def test_a_child_command_runs_this_amhe_not_the_one_in_its_working_directory(tmp
     plain = subprocess.run([sys.executable, "-c", "from amhe_cli.cli import main; main()", "--version"], cwd=tmp_path,
                            capture_output=True, text=True, timeout=60)
     assert plain.returncode != 0 and "the other amhe_cli" in plain.stderr
+
+
+def test_the_emulated_grid_names_each_label_s_recordings_apart(monkeypatch):
+    """``benchmarks/go1_emulated_runs.py``: two grids side by side into one ``--out-dir`` (two codes, run for run)
+    write one file per run each, not one file at once."""
+    import importlib.util
+    from pathlib import Path
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "go1_emulated_runs.py"
+    monkeypatch.syspath_prepend(str(path.parent))  # it imports the scripts beside it
+    spec = importlib.util.spec_from_file_location("go1_emulated_runs", path)
+    grid = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(grid)
+    names = {grid.recording_name("t3", "adaptive", 2, label) for label in (None, "new", "old", "a/b c")}
+    assert names == {"go1_t3_adaptive_s2.mcap", "go1_t3_adaptive_s2_new.mcap", "go1_t3_adaptive_s2_old.mcap",
+                     "go1_t3_adaptive_s2_a_b_c.mcap"}
