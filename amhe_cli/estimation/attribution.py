@@ -332,10 +332,10 @@ class SplitTracker:
         return P
 
     def test_search_from(self) -> float | None:
-        """Start [s] of the data the next change test also scores, to place the change it may open
-        (:meth:`test`'s ``located``): where the last test passed :data:`DETECT`, :data:`BACK` seconds before
-        that test's window (where a decision would seek the change it opens, :meth:`search_from`), not before the
-        reference's last change; else None."""
+        """Start [s] of the data in which the next change test also seeks the change it may open (:func:`locate`,
+        its ``located``): where the last test passed :data:`DETECT`, :data:`BACK` seconds before that test's window,
+        where the change's first decision would seek it (:meth:`search_from`), not before the reference's last
+        change; else None."""
         if self.tested is None or self.pending is not None:
             return None
         return max(self.tested[0] - self.product.window - BACK, self.floor, 0.0)
@@ -346,8 +346,8 @@ class SplitTracker:
         moved where a candidate that moves it beats the held split by :data:`DETECT` of its cost; two
         successive tests so, in the same direction, open a change from the start of the first one's window,
         its data counted as seen (decided then on the data after it, located first), or from ``located`` [s]
-        where given (the change placed by this test's own clips over :meth:`test_search_from`'s data, so its
-        first decision need not seek it). Returns whether it opened one.
+        where given (the change sought with this test, in :meth:`test_search_from`'s data: its first decision
+        need not seek it). Returns whether it opened one.
 
         The windows chain their estimates (``p̂⁻``, eq. 4), so their product follows a change over seconds
         (:meth:`fuse`); this test starts from the split held each time. *Measured* on four fresh noisy T3/T4

@@ -299,6 +299,12 @@ class MovingHorizonEstimator:
             each line decision on a thread of its own (``run`` sets it on the wall clock):
             the windows go on at their cadence meanwhile, and those that end during a decision are fused once
             it is in. Off (default): a decision is made inside the update that found it due, as offline.
+        early: with :attr:`concurrent`, start a window's change test, or the decision its data make due, when its
+            update starts, beside the window's solve (:meth:`_test_early`); else after the solve. Default: where
+            the decisions roll out on a GPU, whose thread mostly waits on it. With the decisions on the CPU they
+            would take the cores the window and the planner use: an emulated T4 run on this 2-core machine with
+            ``attribute_device: cpu`` fell in 2 of 3 runs so, against 0 of 2 (and one 40° tilt trip) after the
+            solve (docs/evaluation.md "A decision started with its window").
         decided: line decisions finished on their own thread so far (:attr:`concurrent`): a reader that saw
             fewer may :meth:`stamp` its last update with the newer split.
         decision_errors: failures of decisions on their own thread, one line each, not yet taken
@@ -327,6 +333,7 @@ class MovingHorizonEstimator:
         # made inside the update, from the windows' stream, as offline replays always have
         self._decide_rng = np.random.default_rng([self.settings.seed, 1])
         self.concurrent = False
+        self.early = self._decide_pool is not None and not isinstance(self._decide_pool, RolloutPool)
         self._decider: threading.Thread | None = None
         self._queued: list[tuple[float, np.ndarray]] = []  # windows (t, mean) that ended during a decision
         self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
@@ -513,8 +520,9 @@ class MovingHorizonEstimator:
         (:meth:`SplitTracker.candidates`) on :data:`LOCATE_CLIPS` clips of the data from there, as a decision seeks
         its change (:func:`locate`), and a change it opens is placed so: its first decision follows without seeking
         it, one dependent rollout batch fewer between the data and the planner. (Placed by the test's own
-        candidates, ±0.2 in log, a T3 mass switch sat 0.4–0.6 s early in 4 of 6 draws, against 0 of 6 by the lines,
-        and its first readings were 10–15 % low in the emulated loop.)"""
+        candidates, ±0.2 in log, on the window's clips and those before it, a T3 mass switch sat 0.37–0.6 s early in
+        5 of 6 draws on two noisy recordings, against 1 of 6 by the lines on the clips a decision draws; in the
+        emulated loop its readings came 10–15 % low, docs/evaluation.md "A decision started with its window".)"""
         tr = self.tracker
         seek = True
         if test and tr.due() is None and tr.testing(t):
@@ -524,11 +532,11 @@ class MovingHorizonEstimator:
             if clips is not None and span is None:
                 tr.test(t, self._decision_cost(clips).evaluate(tr.test_candidates(base)).data)
             elif clips is not None:
-                both, (own, seen) = join_clips(traj, self.scene, clips, span)
+                both, (own, sought) = join_clips(traj, self.scene, clips, span)
                 T, lines = tr.test_candidates(base), tr.candidates(base)  # T[0]: the split held
                 C = self._decision_cost(both).evaluate(np.vstack([T, lines])).per_clip
                 n = len(T)
-                located = float(traj.t[both.start[seen[locate(C[n:, seen], C[0, seen])]]])
+                located = float(traj.t[both.start[sought[locate(C[n:, sought], C[0, sought])]]])
                 seek = not tr.test(t, C[:n, own].sum(axis=1), located)
         due = tr.due()
         if due is not None:
@@ -651,13 +659,13 @@ class MovingHorizonEstimator:
         if clips is None:
             return Update(t, self.mean.copy(), self.std.copy(), float("nan"), 0, time.perf_counter() - t0, True,
                           self.window_mean.copy(), steps)
-        if self.tracker is not None and self._aside:
-            self._test_early(traj, stop, t)
         weights = self.weights or StateWeights.for_log(traj)
         if self._cost is None:
             self._cost = RolloutCost(self.scene, self.space, clips, weights, pool=self.pool)
         else:
             self._cost.set_clips(clips, weights)
+        if self.tracker is not None and self._aside and self.early:
+            self._test_early(traj, stop, t)  # after the windows' cost is set: the decisions' takes its W_x
         prev = self.window_mean.copy()
         self._cost.set_prior(prev, self.pull_std)
         mu = prev.copy()
