@@ -338,7 +338,7 @@ class SplitTracker:
         change; else None."""
         if self.tested is None or self.pending is not None:
             return None
-        return max(self.tested[0] - self.product.window - BACK, self.floor, 0.0)
+        return self._search_start(self.tested[0] - self.product.window)
 
     def test(self, t: float, J: np.ndarray, located: float | None = None) -> bool:
         """Take a change test of the window ending at ``t`` [s]: ``J`` (5,) the data costs of
@@ -388,7 +388,12 @@ class SplitTracker:
         :data:`RELOCATE` seconds after it showed; else None (nothing to seek)."""
         if reason == "period" or self.pending is None or self.last is None or self.last - self.shown >= RELOCATE:
             return None
-        return max(self.shown - BACK, self.floor, 0.0)
+        return self._search_start(self.shown)
+
+    def _search_start(self, shown: float) -> float:
+        """Where the search for a change that showed at ``shown`` [s] starts: :data:`BACK` seconds before, not
+        before the reference's last change."""
+        return max(shown - BACK, self.floor, 0.0)
 
     def relocate(self, t: float) -> str:
         """Place the pending change at ``t`` [s], earlier or later than before; the data since count as seen.

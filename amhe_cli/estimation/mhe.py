@@ -333,11 +333,10 @@ class MovingHorizonEstimator:
         # made inside the update, from the windows' stream, as offline replays always have
         self._decide_rng = np.random.default_rng([self.settings.seed, 1])
         self.concurrent = False
-        self.early = self._decide_pool is not None and not isinstance(self._decide_pool, RolloutPool)
+        self.early = self._decide_on_gpu
         self._decider: threading.Thread | None = None
         self._queued: list[tuple[float, np.ndarray]] = []  # windows (t, mean) that ended during a decision
         self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
-        self._tested_at: float | None = None  # end [s] of the window last tested at its update's start
         self._lock = threading.Lock()
         self._reported: tuple[tuple[float, float], tuple[float, float]] | None = None  # (mass, μ), their σ
         self.decided = 0
@@ -453,6 +452,12 @@ class MovingHorizonEstimator:
         return self._decider is not None and self._decider.is_alive()
 
     @property
+    def _decide_on_gpu(self) -> bool:
+        """Whether the decisions have a backend of their own on a GPU (``attribute_device``), where a batch costs
+        its latency more than its rollouts."""
+        return self._decide_pool is not None and not isinstance(self._decide_pool, RolloutPool)
+
+    @property
     def _aside(self) -> bool:
         """Whether tests and decisions run on a thread of their own (:attr:`concurrent`, with a backend of their
         own: the windows' pool serves one thread)."""
@@ -474,29 +479,31 @@ class MovingHorizonEstimator:
                                          args=(traj, stop, t, self.mean.copy(), self._decide_rng, test))
         self._decider.start()
 
-    def _test_early(self, traj: Trajectory, stop: int, t: float) -> None:
+    def _test_early(self, traj: Trajectory, stop: int, t: float) -> bool:
         """At the start of the update of the informative window ending at sample ``stop`` (``t`` [s]), with
         decisions on a thread of their own (:attr:`concurrent`): its data counted in (:meth:`SplitTracker.advance`),
         its change test and any decision due start there now, beside the window's own solve, which needs neither
         (the test holds the reference's split, a decision the split held before its change). Started after the
         solve, as before, a decision's split reached the planner 1.5 s after its data (median, emulated T4 on an
-        H200; 0.9 s with the test started here), the solve's 0.2–0.3 s among it."""
+        H200; 0.9 s with the test started here), the solve's 0.2–0.3 s among it. Returns whether it started
+        (the window is then not tested again after its solve)."""
         if self.deciding:
-            return
+            return False
         self._catch_up()
         self._publish()  # the windows it fused; and what this window reports while a decision runs
         tr = self.tracker
         tr.advance(t)  # its data are in: a decision they make due starts now too
-        if tr.due() is not None or tr.testing(t):
-            self._tested_at = float(t)
-            self._start_decider(traj, stop, t, True)
+        if tr.due() is None and not tr.testing(t):
+            return False
+        self._start_decider(traj, stop, t, True)
+        return True
 
-    def _attribute(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray) -> None:
+    def _attribute(self, traj: Trajectory, stop: int, t: float, mu: np.ndarray, tested: bool = False) -> None:
         """Feed the window (d,) ending at ``t`` [s] to the tracker (``settings.attribute``); then a change test
         of its data where no decision is due (:meth:`SplitTracker.test`), and the decision due (after it): here,
-        or on a thread of its own (:attr:`concurrent`; there the test may have run already, from
-        :meth:`_test_early`). While one runs there, the tracker is its alone: the window waits in a queue, fused
-        in order once the decision is in."""
+        or on a thread of its own (:attr:`concurrent`; ``tested``: :meth:`_test_early` already started its test
+        there). While one runs there, the tracker is its alone: the window waits in a queue, fused in order once
+        the decision is in."""
         tr = self.tracker
         if self.deciding:
             self._queued.append((float(t), mu.copy()))
@@ -506,9 +513,8 @@ class MovingHorizonEstimator:
         if not self._aside:
             self._test_and_decide(traj, stop, t, self.mean.copy(), self.rng)
         self._publish()
-        test = self._tested_at != float(t)
-        if self._aside and (tr.due() is not None or (test and tr.testing(t))):
-            self._start_decider(traj, stop, t, test)
+        if self._aside and (tr.due() is not None or (not tested and tr.testing(t))):
+            self._start_decider(traj, stop, t, not tested)
 
     def _test_and_decide(self, traj: Trajectory, stop: int, t: float, base: np.ndarray,
                          rng: np.random.Generator, test: bool = True) -> None:
@@ -516,10 +522,11 @@ class MovingHorizonEstimator:
         no decision is due and a change may open, then the decision due, if any (``base`` (d,) holds the other
         parameters; clips drawn with ``rng``).
 
-        Where the last test passed (:meth:`SplitTracker.test_search_from`), this one's batch also scores the lines
+        Where the last test passed (:meth:`SplitTracker.test_search_from`), this one also scores the lines
         (:meth:`SplitTracker.candidates`) on :data:`LOCATE_CLIPS` clips of the data from there, as a decision seeks
         its change (:func:`locate`), and a change it opens is placed so: its first decision follows without seeking
-        it, one dependent rollout batch fewer between the data and the planner. (Placed by the test's own
+        it. On a GPU backend that is in the test's own batch, one dependent rollout batch fewer between the data
+        and the planner; on the CPU, a batch of its own (the same costs, no rollout spent on a pairing not read). (Placed by the test's own
         candidates, ±0.2 in log, on the window's clips and those before it, a T3 mass switch sat 0.37–0.6 s early in
         5 of 6 draws on two noisy recordings, against 1 of 6 by the lines on the clips a decision draws; in the
         emulated loop its readings came 10–15 % low, docs/evaluation.md "A decision started with its window".)"""
@@ -529,15 +536,19 @@ class MovingHorizonEstimator:
             clips = self._decision_clips(traj, stop, t - self.settings.window, TEST_CLIPS, rng)
             back = tr.test_search_from()
             span = None if clips is None or back is None else self._decision_clips(traj, stop, back, LOCATE_CLIPS, rng)
+            T = tr.test_candidates(base)  # T[0]: the split held
             if clips is not None and span is None:
-                tr.test(t, self._decision_cost(clips).evaluate(tr.test_candidates(base)).data)
-            elif clips is not None:
+                tr.test(t, self._decision_cost(clips).evaluate(T).data)
+            elif clips is not None and self._decide_on_gpu:
+                # one batch, every candidate on every clip: on a GPU its latency, not its rollouts, is the cost
                 both, (own, sought) = join_clips(traj, self.scene, clips, span)
-                T, lines = tr.test_candidates(base), tr.candidates(base)  # T[0]: the split held
-                C = self._decision_cost(both).evaluate(np.vstack([T, lines])).per_clip
-                n = len(T)
-                located = float(traj.t[both.start[sought[locate(C[n:, sought], C[0, sought])]]])
-                seek = not tr.test(t, C[:n, own].sum(axis=1), located)
+                C = self._decision_cost(both).evaluate(np.vstack([T, tr.candidates(base)])).per_clip
+                located = float(traj.t[both.start[sought[locate(C[len(T):, sought], C[0, sought])]]])
+                seek = not tr.test(t, C[:len(T), own].sum(axis=1), located)
+            elif clips is not None:  # on the CPU, each set of candidates on its own clips: no rollout wasted
+                J = self._decision_cost(clips).evaluate(T).data
+                C = self._decision_cost(span).evaluate(np.vstack([tr.candidates(base), T[:1]])).per_clip
+                seek = not tr.test(t, J, float(traj.t[span.start[locate(C[:-1], C[-1])]]))
         due = tr.due()
         if due is not None:
             self._decide(traj, stop, t, *due, base, rng, seek)
@@ -664,8 +675,8 @@ class MovingHorizonEstimator:
             self._cost = RolloutCost(self.scene, self.space, clips, weights, pool=self.pool)
         else:
             self._cost.set_clips(clips, weights)
-        if self.tracker is not None and self._aside and self.early:
-            self._test_early(traj, stop, t)  # after the windows' cost is set: the decisions' takes its W_x
+        # after the windows' cost is set: the decisions' takes its W_x
+        tested = self.tracker is not None and self._aside and self.early and self._test_early(traj, stop, t)
         prev = self.window_mean.copy()
         self._cost.set_prior(prev, self.pull_std)
         mu = prev.copy()
@@ -689,7 +700,7 @@ class MovingHorizonEstimator:
         if self.fusion is not None:
             self.mean, self.std = self.fusion.update(t, mu), self.fusion.std
         if self.tracker is not None:
-            self._attribute(traj, stop, t, mu)
+            self._attribute(traj, stop, t, mu, tested)
             self.mean, self.std = self.stamp(self.mean, self.std)
             self.std = np.maximum(self.std, floor)
         elapsed = time.perf_counter() - t0
