@@ -21,6 +21,12 @@ def cost(P, m, mu):
     return 100 * (np.log(P[:, 0] / m) ** 2 + np.log(P[:, 1] / mu) ** 2) + 1.0
 
 
+def windows(tr, since, last, every=0.5):
+    """Informative windows (of the tracker's 1 s) counted from ``since`` to ``last`` [s], one every ``every`` s."""
+    for t in np.arange(since + 1.0, last + 1e-9, every):
+        tr.advance(float(t))
+
+
 def step(tr, t, m, mu, rng, split_noise=0.3):
     """One informative window at ``t`` whose split scatters along the product (what 1 mm poses do); the
     decision that falls due scored by :func:`cost` as the estimator would (re-centred once at an edge)."""
@@ -188,27 +194,51 @@ def test_locate_places_the_change_where_the_clips_start_to_prefer_a_line_candida
 
 def test_each_decision_of_a_change_seeks_it_again_and_a_change_moved_later_drops_its_earlier_evidence():
     tr = tracker()
-    tr.last = 12.0
+    windows(tr, 9.0, 12.5)
     tr.open(12.0, 0.5)
     assert tr.search_from("provisional") == pytest.approx(12.0 - BACK)
     tr.floor = 11.0  # the data of the reference's last change start there: no search before it
     assert tr.search_from("provisional") == 11.0
     assert tr.search_from("period") is None
     assert tr.relocate(11.2) == "provisional"
-    assert tr.pending[0] == 11.2 and tr.seen == pytest.approx(0.5 + 0.8)
+    assert tr.pending[0] == 11.2 and tr.seen == pytest.approx(12.5 - 11.2)
     tr.evidence[:] = (100.0, 120.0)
-    tr.last, tr.seen = 13.0, 2.1
+    windows(tr, 12.5, 13.5)
     assert tr.search_from("change") == 11.0  # located again, from the same start
     # the change lies later than placed (an early held window): not yet a span after it, and the decisions
     # that scored data from before it no longer count
     assert tr.relocate(11.9) == "provisional"
-    assert tr.seen == pytest.approx(1.4) and tr.evidence.tolist() == [0.0, 0.0]
+    assert tr.seen == pytest.approx(13.5 - 11.9) and tr.evidence.tolist() == [0.0, 0.0]
     tr.evidence[:] = (100.0, 120.0)
     assert tr.relocate(11.3) == "change" and tr.evidence.tolist() == [100.0, 120.0]  # earlier: still after it
-    assert tr.relocate(11.3 + 0.8 * SHIFT) == "provisional" and tr.evidence.tolist() == [100.0, 120.0]  # jitter
+    assert tr.relocate(11.3 + 0.8 * SHIFT) == "change" and tr.evidence.tolist() == [100.0, 120.0]  # jitter
     tr.last = 12.0 + RELOCATE
     assert tr.search_from("change") is None  # long after it showed: it stays where it lies
     assert tr.held(np.zeros(2)).tolist() == [[4.0, 0.5]]
+
+
+def test_a_change_moved_back_into_a_rest_counts_only_the_pushes_after_it_as_seen():
+    """Traced on a noisy T4 recording: the box rested 15.5–23.5 s, the pushes' resumption opened a change and
+    its search placed it at 19.8 s, inside the rest. Counted by the clock, the rest made it a span old at once,
+    and its first decision was its final one, decided by the lines' sign on a second of pushes (μ 0.48 against
+    0.8). The rest holds no informative window: 1 s of data after it, a provisional decision, as it was."""
+    tr = tracker()
+    windows(tr, 13.0, 17.5)
+    windows(tr, 23.5, 25.0)  # the rest: no window counted between
+    tr.open(24.0, 1.0)
+    assert tr.informative(19.8) == pytest.approx(1.5) and tr.informative(17.0) == pytest.approx(2.0)
+    assert tr.informative(12.0) == pytest.approx(2.0)  # only the last LOOKBACK s are kept
+    assert tr.relocate(19.8) == "provisional" and tr.seen == pytest.approx(1.5)
+    assert tr.due() == (19.8, "provisional")
+    windows(tr, 24.0, 25.5)
+    assert tr.seen == pytest.approx(2.0) and tr.due() == (19.8, "change")
+    # a periodic span over the rest opened at its middle: only its pushes after the middle count
+    tr = tracker()
+    windows(tr, 12.0, 13.0)
+    windows(tr, 21.0, 22.0)
+    P = tr.candidates(np.zeros(2))
+    tr.decide(22.0, "period", P, np.tile(np.abs(np.log(FACTORS / 1.5)), 2))
+    assert tr.pending[0] == pytest.approx(17.0) and tr.seen == pytest.approx(1.0)
 
 
 def test_a_change_s_decisions_add_up_so_a_longer_span_does_not_flip_a_decisive_shorter_one():
@@ -296,7 +326,8 @@ def test_a_change_s_readings_of_the_parameter_it_moved_are_averaged_by_the_data_
 
 def test_a_span_that_straddles_a_change_opens_one_from_its_middle_and_moves_nothing():
     tr = tracker()
-    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    windows(tr, 8.0, 10.0)
+    assert (tr.since, tr.last, tr.seen) == (8.0, 10.0, SPAN)
     P = tr.candidates(np.zeros(2))
     d = tr.decide(10.0, "period", P, np.tile(np.abs(np.log(FACTORS / 1.5)), 2))
     assert d.changed is None and tr.ref == (4.0, 0.5)
@@ -308,7 +339,7 @@ def test_a_periodic_attribution_opens_the_change_whose_final_decision_on_the_dat
     read a friction change): its decisive line is attributed at once, and the change opened from the span's
     middle; its final decision, a span of data after it, goes by the lower line from the split held before."""
     tr = tracker()
-    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    windows(tr, 8.0, 10.0)
     P = tr.candidates(np.zeros(2))
     d = tr.decide(10.0, "period", P, cost(P, 4.0, 0.75))  # the straddling span reads the friction
     assert d.changed == "box_friction" and tr.ref[0] == 4.0 and tr.ref[1] == pytest.approx(0.75, rel=0.02)
@@ -325,7 +356,7 @@ def test_a_periodic_attribution_opens_the_change_whose_final_decision_on_the_dat
 @pytest.mark.parametrize("reason", ["period", "change"])
 def test_a_decisive_line_without_a_change_of_the_friction_force_is_averaged_not_attributed(reason):
     tr = tracker()
-    tr.since, tr.last, tr.seen = 8.0, 10.0, SPAN
+    windows(tr, 8.0, 10.0)
     if reason == "change":
         tr.open(8.0, SPAN)
     P = tr.candidates(np.zeros(2))
