@@ -206,6 +206,31 @@ def test_lost_or_corrupt_state_ends_in_damping_within_50_ms(emulator, tmp_path, 
     assert traj.duration > 1.0
 
 
+def test_a_fall_ends_in_damping_and_a_non_zero_exit(emulator, tmp_path):
+    """The motors' power cut 3.5 s after the first command (``motor-loss``): the robot folds to the floor. The
+    client reports the fall as its failure, with a non-zero exit (a run that broke the robot once ended with
+    status 0 and only ``"fell": true`` in its JSON), damps it, and keeps the recording."""
+    for emu, where in stall_retries(emulator, tmp_path, "--fault", "motor-loss@3.5"):
+        proc, out = run_client(emu, where, "--arm", "--duration", "12", *patient(where))
+        emu.stop()
+        if "no valid robot state" not in proc.stderr:
+            break
+        assert_stalled(emu, "the run stopped", proc.stderr)
+    assert proc.returncode == 2, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(errors) == 1 and "robot fell at t = " in errors[0] and "damped" in errors[0], proc.stderr
+    assert "Traceback" not in proc.stderr
+    metrics = json.loads(proc.stdout)
+    assert metrics["fell"] is True and metrics["success"] is False and metrics["reason"].startswith("robot fell")
+    t, valid, mode, q, kp, kd = emu.rows()
+    t_cut = first_valid_time(t, valid) + 3.5
+    assert (valid & (t < t_cut) & (mode == SERVO).all(axis=1)).sum() > 500  # it stood and walked before
+    after = valid & (t > t_cut) & damped(mode, kp, kd)
+    assert after.any() and damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # damping, and only that, after
+    assert t[valid][-1] - t_cut < 4.0  # seen and ended within seconds, not at the run's 12 s
+    assert read_log(str(out)).duration > 1.0  # the recording (from the stand, after the ramp) closed and readable
+
+
 def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
     # As above: only a run that the emulator's own stall ended before the freeze is tried again.
     for emu, where in stall_retries(emulator, tmp_path, "--fault", "mocap-freeze@4.5"):

@@ -113,7 +113,7 @@ def emulate_cmd():
 @click.option("--box-body", default="Box_body", show_default=True, help="Rigid-body name of the box's pose.")
 @click.option("--fault", "faults", multiple=True, metavar="KIND@T",
               help="Inject a fault T s after the first valid command: link-loss, corrupt, mocap-freeze, "
-                   "mocap-drop. Repeatable.")
+                   "mocap-drop, motor-loss (no torque: the robot folds). Repeatable.")
 @click.option("--record", type=click.Path(dir_okay=False), default=None,
               help="CSV of every received packet (t, valid, mode_i, q_i, kp_i, kd_i).")
 @click.option("--force", is_flag=True, help="Overwrite an existing --record file.")

@@ -79,7 +79,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
     A Go1 run waits for the robot's state stream and both poses, ramps to the
     stand over 2 s, and only then plans; any failure (safety trip, lost link,
     stale state, Ctrl-C, an exception) ends in damping, the recording is kept
-    and the exit status is non-zero.
+    and the exit status is non-zero. So does a fall, on either target.
     """
     from amhe_cli.cli.plot import plot_run
     from amhe_cli.control.closed_loop import run_robot_side, run_task, save_run
@@ -189,6 +189,9 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
             click.echo(f"amhe: {result.failure}; recorded {out_path}", err=True)
             sys.exit(130)
         raise AmheError(f"run stopped: {result.failure} (recorded {out_path})")
+    if result.fell:  # a fall is a broken robot: a script that runs this must not read it as a run that ended
+        raise AmheError(f"run stopped: {reason}" + ("; the robot was damped" if plant is not None else "")
+                        + f" (recorded {out_path})")
 
 
 def prior_warning(target: str, mode: str, settings, start) -> str | None:

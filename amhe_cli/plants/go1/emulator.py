@@ -74,7 +74,7 @@ POSE_RATE = 120.0
 #: by hand at 1 rad/s resists with 5 N·m.
 DAMPING_MODE_KD = 5.0
 #: Kinds of fault :func:`parse_fault` knows.
-FAULT_KINDS = ("link-loss", "corrupt", "mocap-freeze", "mocap-drop")
+FAULT_KINDS = ("link-loss", "corrupt", "mocap-freeze", "mocap-drop", "motor-loss")
 #: Reported for the motors' and the IMU's temperature [°C] (the sim has no heat).
 TEMPERATURE = 35
 #: The wire's int16 range, for the raw ddq and foot-force fields.
@@ -94,7 +94,8 @@ class Fault:
     robot, the robot still hears, records and applies the client, so the
     client's reaction — damping — shows in the record), ``corrupt`` (every LowState from then on has a bad
     CRC), ``mocap-freeze`` (the same poses with the same stamp are sent from
-    then on), ``mocap-drop`` (poses stop).
+    then on), ``mocap-drop`` (poses stop), ``motor-loss`` (the motors deliver no torque from then on, whatever
+    is commanded, as when their power is cut: the robot folds to the floor, a fall the client must report).
     """
 
     kind: str
@@ -473,6 +474,8 @@ class Go1Emulator:
                               f"(truth now {self.plant.truth_values})", "info")
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
         self._tau = motor_torques(self._cmd, q, dq, self.limit, self.motor_strength)
+        if "motor-loss" in self._active:
+            self._tau = np.zeros_like(self._tau)
         d.qfrc_applied[:] = 0.0
         d.qfrc_applied[self._jv] = self._tau
         mujoco.mj_step(m, d)
