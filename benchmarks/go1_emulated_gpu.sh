@@ -1,0 +1,32 @@
+#!/usr/bin/env bash
+# The emulated Go1 loop with the MHE's line decisions on a GPU (`mhe: {attribute: true, attribute_device: cuda}`),
+# as docs/evaluation.md measures it on a lent GPU host: Warp's kernel cache warmed once by one process (so no
+# client compiles them mid-grid, and no two compile at once), then `go1_emulated_runs.py` over the tasks and
+# seeds, each run's JSON line appended to $OUT/rows.jsonl as it finishes (a call cut off keeps every finished
+# run), its stderr to $OUT/grid.log, the table at the end.
+#
+# Usage (amhe's dependencies and amhe[gpu] importable, run from the repository's root; BELIEFS holds one
+# starting belief per task, TASK.belief.yaml, e.g. from `amhe probe --target sim`):
+#     OUT=results BELIEFS=dir benchmarks/go1_emulated_gpu.sh t3,t4 SEEDS [FIRST_SEED] [more go1_emulated_runs.py args]
+# Detached (`setsid`), it outlives the command that started it, so a later command can wait for its rows.
+set -u
+OUT=${OUT:-gpu_loop}
+BELIEFS=${BELIEFS:-.}
+mkdir -p "$OUT"
+here=$(cd "$(dirname "$0")" && pwd)
+tasks=$1; seeds=$2; first=${3:-0}; shift $(( $# < 3 ? $# : 3 ))
+mkdir -p "$OUT/recordings"
+config="$OUT/attr.yaml"
+printf 'mhe: {attribute: true, attribute_device: cuda}\nmhe_cores: 2\n' > "$config"
+first_task=${tasks%%,*}
+t0=$(date +%s)
+# a second of the wall-clock loop in the sim loads the decisions' backend before it (MovingHorizonEstimator.warm):
+# the first time on a machine, that compiles MuJoCo Warp's kernels into its cache
+python3 -c "from amhe_cli.cli import main; main()" run --task "$first_task" --mode adaptive --realtime --duration 1 -q --force \
+    --belief "$BELIEFS/$first_task.belief.yaml" --config "$config" --out "$OUT/warm.mcap" > "$OUT/warm.log" 2>&1
+echo "warm: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"
+rm -f "$OUT/warm.mcap" "$OUT/warm.truth.csv"
+python3 "$here/go1_emulated_runs.py" --tasks "$tasks" --modes adaptive --seeds "$seeds" --first-seed "$first" \
+    --cores-per-run 6 --emulator-cores 1 --config "$config" --run-args "--belief $BELIEFS/{task}.belief.yaml" \
+    --jsonl "$OUT/rows.jsonl" --out-dir "$OUT/recordings" "$@" >> "$OUT/grid.log" 2>&1
+echo "grid: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"
