@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.attribution import (BACK, CHANGE, DETECT, FACTORS, FINE, LOCATE_MIN, PERIOD, QUIET, RELOCATE,
-                                            RETRY, SHIFT, SPAN, SplitTracker, line_minimum, locate)
+from amhe_cli.estimation.attribution import (BACK, CHANGE, DETECT, FACTORS, FINE, LOCATE_MIN, OPEN, PERIOD, QUIET,
+                                            RELOCATE, RETRY, SHIFT, SPAN, SplitTracker, line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -298,11 +298,19 @@ def test_two_successive_change_tests_that_read_the_force_moved_the_same_way_open
     assert not tr.test(7.5, J(0.5)) and not tr.test(8.0, J(0.5))  # a change pending: tests open none
     tr.pending, tr.quiet_until = None, 9.0  # a change just moved the reference: quiet
     assert not tr.test(8.5, J(0.5)) and not tr.test(9.0 - 1e-6, J(0.5))
-    assert tr.test(9.0, J(0.5)) is False and tr.test(9.5, J(0.5)) and tr.pending[0] == pytest.approx(8.0)
+    weak = J(DETECT + 0.05)  # past DETECT, short of OPEN: it takes two
+    assert tr.test(9.0, weak) is False and tr.test(9.5, weak) and tr.pending[0] == pytest.approx(8.0)
     fresh = tracker()
     for t in (1.0, 1.5):  # the held split diverged: no reading, however the others score
         assert not fresh.test(t, np.array([np.inf, 1.0, 1.0, 1.0, 1.0]))
     assert fresh.pending is None
+    # one test that reads the force moved by OPEN of the held split's cost opens a change alone, from the start
+    # of its window, that window's data seen after it
+    strong = tracker()
+    assert not strong.test(3.0, J(OPEN - 0.01)) and strong.pending is None
+    strong = tracker()
+    assert strong.test(3.0, J(OPEN + 0.01)) and strong.pending == (2.0, (4.0, 0.5)) and strong.seen == 1.0
+    assert strong.due() == (2.0, "provisional")
 
 
 def test_a_change_s_readings_of_the_parameter_it_moved_are_averaged_by_the_data_each_saw():
