@@ -287,7 +287,7 @@ def test_two_successive_change_tests_that_read_the_force_moved_the_same_way_open
     assert np.all(P[:, 2] == 0.3)  # the other parameters as given
     J = lambda gain_up, gain_down=-0.5: np.array([100.0, 100 * (1 - gain_up), 150, 100 * (1 - gain_up) + 5,  # noqa: E731
                                                   100 * (1 - gain_down)])
-    assert not tr.test(5.0, J(DETECT + 0.05))  # one test alone opens nothing
+    assert not tr.test(5.0, J(DETECT + 0.05))  # one test short of OPEN alone opens nothing
     assert not tr.test(5.5, J(DETECT - 0.05))  # one below the threshold forgets it
     assert not tr.test(6.0, J(DETECT + 0.05))
     assert not tr.test(6.5, J(-0.5, DETECT + 0.1))  # the force read the other way: starts afresh

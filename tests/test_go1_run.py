@@ -226,7 +226,7 @@ def test_a_fall_ends_in_damping_and_a_non_zero_exit(emulator, tmp_path):
     t_cut = first_valid_time(t, valid) + 3.5
     assert (valid & (t < t_cut) & (mode == SERVO).all(axis=1)).sum() > 500  # it stood and walked before
     after = valid & (t > t_cut) & damped(mode, kp, kd)
-    assert after.any() and damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # damping, and only that, after
+    assert after.any() and damped(mode, kp, kd)[valid & (t > t[after][0])].all()  # damping, and only that
     assert t[valid][-1] - t_cut < 4.0  # seen and ended within seconds, not at the run's 12 s
     assert read_log(str(out)).duration > 1.0  # the recording (from the stand, after the ramp) closed and readable
 

@@ -42,10 +42,10 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   data, or CUSUM), and it follows a change over seconds (each window starts from the last, ``p̂⁻``). So
   each window's data is also *tested* (:meth:`SplitTracker.test`): :data:`TEST_CLIPS` clips of it scored at
   the reference and at the friction force moved by ``exp(±CHANGE)`` along either line; two successive tests
-  that read it moved the same way open the change, or one that reads it moved by :data:`OPEN`. A change is decided provisionally as soon as it opens,
-  with the lines held at the reference before it, and finally once :data:`SPAN` seconds of data after it are
-  in; its attributions of one parameter are averaged, weighted by the data each saw. The windows show it a
-  second or two late, so each of its decisions for :data:`RELOCATE` seconds seeks it in the data from
+  that read it moved the same way open the change, or one that reads it moved by :data:`OPEN`. A change is
+  decided provisionally as soon as it opens, with the lines held at the reference before it, and finally once
+  :data:`SPAN` seconds of data after it are in; its attributions of one parameter are averaged, weighted by
+  the data each saw. The windows show it a second or two late, so each of its decisions for :data:`RELOCATE` seconds seeks it in the data from
   :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and scores clips drawn afresh from
   where it lies; a change's decisions add their lines' costs up (each scores its own clips of the data
   since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
