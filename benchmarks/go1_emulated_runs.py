@@ -21,9 +21,10 @@ fall-reflex recovery,
 ``mhe_decision_batches`` where their GPU backend spent its time (batches, steps, fields, read-back [s]),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
 ``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
-seconds after the change from which every estimate held both bounds, None where the last did not, and
-``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s),
-then one row per (task, mode):
+seconds after the change from which every estimate held both bounds, None where the last did not,
+``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s,
+and ``attributed_s`` / ``to_planner_s``, the data after the change at its first attribution and the seconds from
+there to the planner (:func:`attribution_latency`)), then one row per (task, mode):
 
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
@@ -169,6 +170,27 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
     return out
 
 
+def attribution_latency(row: dict) -> None:
+    """Add to each of ``row``'s MHE segments after a change where to look for lost time: ``attributed_s``, the
+    seconds of data after the change at the first attribution (``mhe_attributed``: the time of the window whose
+    decision made it), and ``to_planner_s``, from there to the first estimate the planner was given that carries
+    it (``swaps``); both None where there was none within :data:`SWAPS_AFTER` s. A change's bounds from 3 s need
+    their sum under 3 s."""
+    segs = [g for g in row.get("mhe", []) if "swaps" in g]
+    for g, ev in zip(segs, row.get("events", [])):
+        g["attributed_s"] = g["to_planner_s"] = None
+        if ev.get("t") is None:
+            continue
+        first = next((a for a in row.get("mhe_attributed", []) if 0 <= a[0] - ev["t"] <= SWAPS_AFTER), None)
+        if first is None:
+            continue
+        after = first[0] - ev["t"]
+        col, tol = (1, 0.006) if first[2] == "box_mass" else (2, 0.0015)
+        got = next((sw[0] for sw in g["swaps"] if sw[0] >= after - 0.05 and abs(sw[col] - first[3]) <= tol), None)
+        g["attributed_s"] = round(after, 2)
+        g["to_planner_s"] = None if got is None else round(got - after, 2)
+
+
 def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> str:
     """File name of one run's recording in ``--out-dir``: ``go1_TASK_MODE_sSEED[_LABEL].mcap``, the label's
     characters outside ``[A-Za-z0-9.-]`` as ``_``. Without the label, two grids run side by side into one folder
@@ -281,6 +303,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         raise
     except Exception as exc:  # noqa: BLE001 - a benchmark row says what went wrong rather than ending the grid
         res["mhe"] = [{"error": f"{type(exc).__name__}: {exc}"}]
+    attribution_latency(res)
     return res
 
 
@@ -315,6 +338,10 @@ def table(rows: list[dict], tasks, modes) -> None:
                 mid = np.median([x if x is not None else np.inf for x in settled]) if settled else np.inf
                 late = (f", within both after {f'{mid:.1f} s' if np.isfinite(mid) else 'never'}"
                         f" (median; never in {sum(x is None for x in settled)})") if settled else ""
+                lag = [(g["attributed_s"], g["to_planner_s"]) for g in got if g.get("to_planner_s") is not None]
+                if lag:  # where those seconds went: the data to its first attribution, then on to the planner
+                    late += (f", attributed on {np.median([a for a, _ in lag]):.2f} s of data, at the planner "
+                             f"{np.median([b for _, b in lag]):.2f} s later (median of {len(lag)})")
                 segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 100 * MASS_BOUND))}"
                             f"/{len(got)} / {int(np.sum(mu <= MU_BOUND))}/{len(got)}{late}")
             print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "

@@ -334,9 +334,9 @@ def test_a_child_command_runs_this_amhe_not_the_one_in_its_working_directory(tmp
     assert plain.returncode != 0 and "the other amhe_cli" in plain.stderr
 
 
-def test_the_emulated_grid_names_each_label_s_recordings_apart(monkeypatch):
-    """``benchmarks/go1_emulated_runs.py``: two grids side by side into one ``--out-dir`` (two codes, run for run)
-    write one file per run each, not one file at once."""
+@pytest.fixture
+def emulated_grid(monkeypatch):
+    """``benchmarks/go1_emulated_runs.py`` as a module."""
     import importlib.util
     from pathlib import Path
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "go1_emulated_runs.py"
@@ -344,6 +344,30 @@ def test_the_emulated_grid_names_each_label_s_recordings_apart(monkeypatch):
     spec = importlib.util.spec_from_file_location("go1_emulated_runs", path)
     grid = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(grid)
+    return grid
+
+
+def test_the_emulated_grid_says_how_much_data_a_change_took_and_how_long_its_split_took_to_the_planner(emulated_grid):
+    """A row's segment after a change: the first attribution's data after the change, and from there to the first
+    estimate the planner was given that carries its value (not an earlier swap, nor one of another value)."""
+    row = {"events": [{"param": "box_mass", "value": 6.0, "t": 10.0}],
+           "mhe_attributed": [[9.0, "period", "box_friction", 0.51], [11.52, "provisional", "box_mass", 5.94],
+                              [12.5, "change", "box_mass", 5.82]],
+           "mhe": [{"from": 0.0, "to": 10.0}, {"from": 13.0, "to": 30.0, "within_after_s": 2.9,
+                                               "swaps": [[0.5, 4.02, 0.497], [1.6, 4.02, 0.497], [2.8, 5.94, 0.497],
+                                                         [3.4, 5.82, 0.497]]}]}
+    emulated_grid.attribution_latency(row)
+    assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] == 1.28
+    assert "attributed_s" not in row["mhe"][0]
+    row["mhe"][1]["swaps"] = row["mhe"][1]["swaps"][:2]  # never reached the planner in the rows kept
+    emulated_grid.attribution_latency(row)
+    assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] is None
+
+
+def test_the_emulated_grid_names_each_label_s_recordings_apart(emulated_grid):
+    """``benchmarks/go1_emulated_runs.py``: two grids side by side into one ``--out-dir`` (two codes, run for run)
+    write one file per run each, not one file at once."""
+    grid = emulated_grid
     names = {grid.recording_name("t3", "adaptive", 2, label) for label in (None, "new", "old", "a/b c")}
     assert names == {"go1_t3_adaptive_s2.mcap", "go1_t3_adaptive_s2_new.mcap", "go1_t3_adaptive_s2_old.mcap",
                      "go1_t3_adaptive_s2_a_b_c.mcap"}
