@@ -373,8 +373,8 @@ class SplitTracker:
 
         On eight more fresh recordings (two draws each), one test past :data:`OPEN` came 0.5 s before two
         past :data:`DETECT` in 9 of 16 changes, and 3 of 218 windows before a change passed it (two in a row
-        past DETECT: 1). Replayed without a clock (``benchmarks/mhe_accuracy.py``, seeds 0–1), T3's switch
-        held both bounds from 3 s in 7 of 8 against 4 of 8 for two tests alone, T4's step 7 of 8 either way
+        past DETECT: 1). Replayed without a clock (``benchmarks/mhe_accuracy.py``), T3's switch held both
+        bounds from 3 s in 13 of 16 (seeds 0–3) against 8 of 16 for two tests alone, T4's step 7 of 8 either way
         (docs/evaluation.md "The final code in the emulated loop, and one test that opens a change")."""
         reading = test_reading(J)
         if reading is None or reading[0] < DETECT or not self.testing(t):
