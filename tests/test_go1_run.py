@@ -143,6 +143,18 @@ def assert_stalled(emu, why: str, said: str) -> None:
         f"{why} with no stall of the state stream; the client said:\n{said}"
 
 
+def run_unless_stalled(emulator, tmp_path, emulator_args=(), client_args=(), patient_client=False):
+    """The client (``client_args``; with ``patient_client``, :func:`helpers.patient`'s watchdogs) against a fresh
+    emulator (``emulator_args``), run again (:func:`stall_retries`) only where the emulator's own stall tripped
+    the client's state watchdog. Returns (the stopped emulator, the client's process, its recording)."""
+    for emu, where in stall_retries(emulator, tmp_path, *emulator_args):
+        proc, out = run_client(emu, where, *client_args, *(patient(where) if patient_client else ()))
+        emu.stop()
+        if "no valid robot state" not in proc.stderr:
+            return emu, proc, out
+        assert_stalled(emu, "the run stopped", proc.stderr)
+
+
 def run_client(emu, tmp_path, *args, timeout=90):
     out = tmp_path / "go1.mcap"
     proc = subprocess.run(AMHE + ["run", "--task", "t1", "--target", "go1", *emu.client_args(), "--mode", "baseline",
@@ -210,12 +222,8 @@ def test_a_fall_ends_in_damping_and_a_non_zero_exit(emulator, tmp_path):
     """The motors' power cut 3.5 s after the first command (``motor-loss``): the robot folds to the floor. The
     client reports the fall as its failure, with a non-zero exit (a run that broke the robot once ended with
     status 0 and only ``"fell": true`` in its JSON), damps it, and keeps the recording."""
-    for emu, where in stall_retries(emulator, tmp_path, "--fault", "motor-loss@3.5"):
-        proc, out = run_client(emu, where, "--arm", "--duration", "12", *patient(where))
-        emu.stop()
-        if "no valid robot state" not in proc.stderr:
-            break
-        assert_stalled(emu, "the run stopped", proc.stderr)
+    emu, proc, out = run_unless_stalled(emulator, tmp_path, ("--fault", "motor-loss@3.5"),
+                                        ("--arm", "--duration", "12"), patient_client=True)
     assert proc.returncode == 2, proc.stderr
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "robot fell at t = " in errors[0] and "damped" in errors[0], proc.stderr
@@ -232,13 +240,9 @@ def test_a_fall_ends_in_damping_and_a_non_zero_exit(emulator, tmp_path):
 
 
 def test_a_frozen_mocap_stops_the_push_and_holds_the_stand(emulator, tmp_path):
-    # As above: only a run that the emulator's own stall ended before the freeze is tried again.
-    for emu, where in stall_retries(emulator, tmp_path, "--fault", "mocap-freeze@4.5"):
-        proc, out = run_client(emu, where, "--arm", "--duration", "5", "-q", *patient(where))
-        emu.stop()
-        if "no valid robot state" not in proc.stderr:
-            break
-        assert_stalled(emu, "the run damped", proc.stderr)
+    # Only a run that the emulator's own stall ended before the freeze is tried again (run_unless_stalled).
+    emu, proc, out = run_unless_stalled(emulator, tmp_path, ("--fault", "mocap-freeze@4.5"),
+                                        ("--arm", "--duration", "5", "-q"), patient_client=True)
     assert "motion capture stale: holding the stand" in proc.stderr
     t, valid, mode, q, kp, kd = emu.rows()
     t_freeze = first_valid_time(t, valid) + 4.5
@@ -307,13 +311,8 @@ def test_the_online_mhe_never_holds_up_the_planner(emulator, tmp_path):
     # The MHE's first window of noisy motion capture (the emulator's default: 1 mm, 0.2°) once imported
     # scipy.signal in the control loop, 1 s into the run: on 2 cores the planner stopped for 1.0 s and the
     # relay soft-held the walking robot (3 of 3 T1 runs then tipped past the fall reflex's 17°).
-    # As above: only a run that the emulator's own stall ended (its state stream past the watchdog) is tried again.
-    for emu, where in stall_retries(emulator, tmp_path):
-        proc, out = run_client(emu, where, "--mode", "adaptive", "--dry-run", "--duration", "3")
-        emu.stop()
-        if "no valid robot state" not in proc.stderr:
-            break
-        assert_stalled(emu, "the run stopped", proc.stderr)
+    # Only a run that the emulator's own stall ended (its state stream past the watchdog) is tried again.
+    emu, proc, out = run_unless_stalled(emulator, tmp_path, (), ("--mode", "adaptive", "--dry-run", "--duration", "3"))
     assert proc.returncode == 0, proc.stderr
     assert "soft hold" not in proc.stderr, proc.stderr
     # nor is the start-up wait for the first poses reported as a stale motion capture once the run runs (that
@@ -344,12 +343,8 @@ def test_late_motion_capture_is_measured_against_the_imu_and_said(emulator, tmp_
     the commanded torque: the run reads that from its own joint efforts while it walks (``robot_read``, from
     t = 5 s), says it once, and plans for that robot from then on (the end-of-run check, against the robot
     as read, then has nothing to add)."""
-    for emu, where in stall_retries(emulator, tmp_path, "--pose-latency", "0.025", "--motor-strength", "0.85"):
-        proc, out = run_client(emu, where, "--arm", "--duration", "8", *patient(where))
-        emu.stop()
-        if "no valid robot state" not in proc.stderr:
-            break
-        assert_stalled(emu, "the run stopped", proc.stderr)
+    emu, proc, out = run_unless_stalled(emulator, tmp_path, ("--pose-latency", "0.025", "--motor-strength", "0.85"),
+                                        ("--arm", "--duration", "8"), patient_client=True)
     assert proc.returncode == 0, proc.stderr
     said = [float(m.group(1)) for m in re.finditer(r"motion capture arrives ([0-9.]+) ms late", proc.stderr)]
     assert said, proc.stderr
