@@ -221,7 +221,7 @@ def test_a_change_moved_back_into_a_rest_counts_only_the_pushes_after_it_as_seen
     """Traced on a noisy T4 recording: the box rested 15.5–23.5 s, the pushes' resumption opened a change and
     its search placed it at 19.8 s, inside the rest. Counted by the clock, the rest made it a span old at once,
     and its first decision was its final one, decided by the lines' sign on a second of pushes (μ 0.48 against
-    0.8). The rest holds no informative window: 1 s of data after it, a provisional decision, as it was."""
+    0.8). The rest holds no informative window: 1.5 s of pushes after it, a provisional decision."""
     tr = tracker()
     windows(tr, 13.0, 17.5)
     windows(tr, 23.5, 25.0)  # the rest: no window counted between
