@@ -167,7 +167,8 @@ def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.n
         q, dq: (12,) joint positions [rad] and velocities [rad/s].
         limit: (12,) torque limits [N·m].
         strength: the share of the law's torque the motors deliver (1: as commanded; 0.85: a robot
-            whose motors are weaker than its model's, ``amhe emulate go1 --motor-strength``).
+            whose motors are weaker than its model's, ``amhe emulate go1 --motor-strength``; 0: no torque,
+            the ``motor-loss`` fault).
     """
     q = np.asarray(q, dtype=float)
     dq = np.asarray(dq, dtype=float)
@@ -473,9 +474,8 @@ class Go1Emulator:
                 self.view.log(self.time, f"emulator: {len(fired)} task event(s) fired "
                               f"(truth now {self.plant.truth_values})", "info")
         q, dq = d.qpos[self._jq], d.qvel[self._jv]
-        self._tau = motor_torques(self._cmd, q, dq, self.limit, self.motor_strength)
-        if "motor-loss" in self._active:
-            self._tau = np.zeros_like(self._tau)
+        strength = 0.0 if "motor-loss" in self._active else self.motor_strength  # a power cut: no torque at all
+        self._tau = motor_torques(self._cmd, q, dq, self.limit, strength)
         d.qfrc_applied[:] = 0.0
         d.qfrc_applied[self._jv] = self._tau
         mujoco.mj_step(m, d)
