@@ -175,10 +175,13 @@ def attribution_latency(row: dict) -> None:
     seconds of data after the change at the first attribution (``mhe_attributed``: the time of the window whose
     decision made it), and ``to_planner_s``, from there to the first estimate the planner was given that carries
     it (``swaps``); both None where there was none within :data:`SWAPS_AFTER` s. A change's bounds from 3 s need
-    their sum under 3 s."""
+    their sum under 3 s. Where the run says when its MHE jobs ran (``mhe_jobs``), ``job_s`` splits the second:
+    ``[started, ended]``, the seconds after its window's update began at which the job that made the first
+    attribution started and ended (what lies after ``ended`` is the loop taking it up)."""
     segs = [g for g in row.get("mhe", []) if "swaps" in g]
     for g, ev in zip(segs, row.get("events", [])):
         g["attributed_s"] = g["to_planner_s"] = None
+        g.pop("job_s", None)
         if ev.get("t") is None:
             continue
         first = next((a for a in row.get("mhe_attributed", []) if 0 <= a[0] - ev["t"] <= SWAPS_AFTER), None)
@@ -189,6 +192,9 @@ def attribution_latency(row: dict) -> None:
         got = next((sw[0] for sw in g["swaps"] if sw[0] >= after - 0.05 and abs(sw[col] - first[3]) <= tol), None)
         g["attributed_s"] = round(after, 2)
         g["to_planner_s"] = None if got is None else round(got - after, 2)
+        job = next((j for j in row.get("mhe_jobs", []) if abs(j[0] - first[0]) < 0.006 and j[4] == first[1]), None)
+        if job is not None:
+            g["job_s"] = [round(job[1], 2), round(job[2], 2)]
 
 
 def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> str:
@@ -342,6 +348,10 @@ def table(rows: list[dict], tasks, modes) -> None:
                 if lag:  # where those seconds went: the data to its first attribution, then on to the planner
                     late += (f", attributed on {np.median([a for a, _ in lag]):.2f} s of data, at the planner "
                              f"{np.median([b for _, b in lag]):.2f} s later (median of {len(lag)})")
+                jobs = [g["job_s"] for g in got if g.get("job_s")]
+                if jobs:  # and of those: when its job started and ended after its window's update began
+                    late += (f", its job from +{np.median([a for a, _ in jobs]):.2f} s to "
+                             f"+{np.median([b for _, b in jobs]):.2f} s")
                 segs.append(f"seg{k}: {mass.max():.1f} % / {mu.max():.3f}, {int(np.sum(mass <= 100 * MASS_BOUND))}"
                             f"/{len(got)} / {int(np.sum(mu <= MU_BOUND))}/{len(got)}{late}")
             print(f"{t:4} {m:9} {len(sel):4d} {100 * np.mean([bool(r.get('success')) for r in sel]):6.1f} "

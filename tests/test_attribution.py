@@ -443,3 +443,22 @@ def test_the_estimates_plot_marks_each_attribution_on_its_parameter(tmp_path):
     tall = np.flatnonzero(marked.sum(axis=0) > 100)  # the line where it was attributed spans its axis
     assert 0 < tall.size < 5
     assert np.flatnonzero(marked.any(axis=1)).max() < marked.shape[0] / 2  # the mass axis (upper), not μ's
+
+
+def test_every_refinement_of_a_decision_is_a_grid_point_or_one_of_the_points_between_them():
+    """``between``: scored in the lines' own batch (a GPU decision), no refinement needs a batch of its own,
+    whichever grid point is best, at either end too."""
+    tr = tracker()
+    P = tr.candidates(np.zeros(2))
+    known = np.vstack([P, tr.between(P)])
+    assert len(known) == 2 * FACTORS.size + 4 * (FACTORS.size - 1)
+    n = FACTORS.size
+    for best in range(2 * n):
+        J = np.ones(2 * n)
+        J[best] = 0.0
+        R, _, _ = tr.refinements(P, J)
+        same = np.all(np.isclose(R[:, None], known[None], rtol=1e-9, atol=0.0), axis=2)
+        assert same.any(axis=1).all(), best
+    # and each line's points hold the other parameter where its grid does
+    B = tr.between(P)
+    assert np.all(B[:2 * (n - 1), 1] == P[0, 1]) and np.all(B[2 * (n - 1):, 0] == P[n, 0])

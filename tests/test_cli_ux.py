@@ -358,7 +358,12 @@ def test_the_emulated_grid_says_how_much_data_a_change_took_and_how_long_its_spl
                                                          [3.4, 5.82, 0.497]]}]}
     emulated_grid.attribution_latency(row)
     assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] == 1.28
-    assert "attributed_s" not in row["mhe"][0]
+    assert "attributed_s" not in row["mhe"][0] and "job_s" not in row["mhe"][1]
+    # the run's MHE jobs (amhe run --json's mhe_jobs): the one that made the first attribution, not its window's test
+    row["mhe_jobs"] = [[11.02, 0.01, 0.2, 1, "test"], [11.518, 0.7, 1.1, 3, "provisional"],
+                       [12.5, 0.0, 0.6, 2, "change"]]
+    emulated_grid.attribution_latency(row)
+    assert row["mhe"][1]["job_s"] == [0.7, 1.1]
     row["mhe"][1]["swaps"] = row["mhe"][1]["swaps"][:2]  # never reached the planner in the rows kept
     emulated_grid.attribution_latency(row)
     assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] is None

@@ -134,6 +134,7 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
     ``attribute_device`` the decisions roll out on a backend of their own (here a second CPU pool, as
     ``cuda`` sends them to the GPU beside the windows' CPU pool) and decide the same."""
     from amhe_cli.estimation import attribution
+    from amhe_cli.estimation.cost import RolloutCost
     from amhe_cli.model.rollout import RolloutPool
     monkeypatch.setattr(attribution, "PERIOD", 1.0)  # a decision every informative second, to keep this short
     scene = Scene(SceneConfig())
@@ -142,10 +143,19 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
     mu = step_log.meta["truth_series"]["box_friction"]
     t_step = step_log.t[np.argmax(mu > 0.45)]
     t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
-    runs = {}
-    for where in (None, "cpu"):
+    runs, batches = {}, {}
+    real_evaluate = RolloutCost.evaluate
+
+    def counted(self, P):  # the decisions' batches (each a dependent rollout: its latency on a GPU)
+        batches[where] = batches.get(where, 0) + (self is not mhe._cost)
+        return real_evaluate(self, P)
+
+    monkeypatch.setattr(RolloutCost, "evaluate", counted)
+    for where in (None, "cpu", "gpu"):
+        if where == "gpu":  # a GPU backend's path (the refinements scored in the lines' batch), on the CPU pool
+            monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
         with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
-                                                              attribute_device=where)) as mhe:
+                                                              attribute_device=where and "cpu")) as mhe:
             assert mhe.lookback == attribution.LOOKBACK
             assert (mhe._decide_pool is None) == (where is None)
             ups = [mhe.update(step_log, t) for t in np.arange(t_push, min(t_push + 3.0, t_step), 0.5)]
@@ -160,6 +170,10 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
         # on the first floor, from the truth as its prior: the scored lines keep it there
         assert abs(tr.ref[0] / 2.0 - 1) < 0.1 and abs(tr.ref[1] - 0.3) < 0.03
     assert [d.cost for d in runs["cpu"].decisions] == [d.cost for d in runs[None].decisions]
+    # with the refinements in the lines' batch: the same decisions, on one dependent batch each, not two
+    assert [(d.cost, d.mass, d.friction) for d in runs["gpu"].decisions] == \
+        [(d.cost, d.mass, d.friction) for d in runs["cpu"].decisions]
+    assert batches["cpu"] - batches["gpu"] >= len(runs["gpu"].decisions) > 0  # change tests: one batch either way
     with pytest.raises(AmheError, match="attribute_device 'gpu'"):
         MHESettings(attribute=True, attribute_device="gpu").check()
 
@@ -261,6 +275,10 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     gate.set()
     mhe._decider.join(60)
     assert mhe.decided == 1 and len(tr.decisions) == 1 and tr.decisions[0].t == first.t
+    # the windows that ended meanwhile were fused as it ended, on its thread, not at the next window's update
+    assert not mhe.deciding and not mhe._queued and tr.last == during[-1].t
+    assert [j[0] for j in mhe.jobs][:1] == [first.t] and mhe.jobs[0][4] == tr.decisions[0].reason
+    assert all(0 <= j[1] <= j[2] for j in mhe.jobs)  # started, ended: seconds after its window's update began
     assert len(mhe.decision_times) == 1 and mhe.decision_times[0] > 0
     said = mhe.describe_decisions()  # the run's log line (the CPU backend keeps no timing of its own)
     assert said.startswith("MHE line decisions took a median ") and said.endswith("1 decisions, each on a thread "
@@ -282,8 +300,9 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     kept = tr.ref
     gate.set()
     mhe._decider.join(60)
-    errors = est.take_errors()
-    assert len(errors) == 1 and "MHE line decision failed (RuntimeError: backend lost)" in errors[0]
+    errors = est.take_errors()  # the windows queued meanwhile chain the decision still due: it fails again
+    assert errors and all("MHE line decision failed (RuntimeError: backend lost)" in e for e in errors)
+    assert mhe.jobs[-1][4] == "failed"
     assert tr.ref == kept and est.poll_decision() is not None and window() is not None
     est.close()
 
@@ -331,6 +350,43 @@ def test_a_window_s_decision_and_change_test_start_with_its_update_beside_the_wi
                 assert tr.decisions[0].t == u.t
             else:  # the next: its change test (no decision due), the window before fused first
                 assert calls[1][1] is None and len(tr.decisions) == 1 and calls[0][0] in tr.product.times
+
+
+def test_a_decision_the_windows_make_due_during_another_starts_as_that_one_ends(step_log, monkeypatch):
+    """``concurrent``: windows that end while a decision runs are fused on its thread as it ends, and the decision
+    they make due starts there at once, on the last of them, not at the next window's update (up to 0.5 s later
+    on the wall clock)."""
+    import threading
+    from amhe_cli.estimation import attribution
+    monkeypatch.setattr(attribution, "PERIOD", 0.5)  # each window's new half second makes a decision due
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
+    gate = threading.Event()
+    real = MovingHorizonEstimator._decide
+
+    def held(self, *job):
+        assert gate.wait(60)
+        return real(self, *job)
+
+    monkeypatch.setattr(MovingHorizonEstimator, "_decide", held)
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
+                                                          attribute_device="cpu")) as mhe:
+        mhe.concurrent = mhe.early = True
+        tr = mhe.tracker
+        ts = [t_push, t_push + 0.5, t_push + 1.0]
+        updates = [mhe.update(step_log, t) for t in ts]  # the first's decision held; the others end meanwhile
+        assert not any(u.skipped for u in updates) and mhe.deciding and not tr.decisions
+        assert [q[0] for q in mhe._queued] == ts
+        gate.set()
+        mhe._decider.join(120)
+        # no window since: the first's decision, then the one the queued windows made due, on the last of them
+        assert not mhe.deciding and [d.t for d in tr.decisions] == [ts[0], ts[2]]
+        assert [j[0] for j in mhe.jobs] == [ts[0], ts[2]] and tr.last == ts[2]
+        first, chained = mhe.jobs
+        began = mhe._began  # time.monotonic() at each window's update start: the jobs' times are after it
+        assert 0 <= began[ts[2]] + chained[1] - (began[ts[0]] + first[2]) < 0.1  # started as the first ended
 
 
 # -- outputs and errors through the CLI ------------------------------------------
@@ -523,3 +579,18 @@ def test_truth_change_times_name_where_a_parameter_takes_a_new_value():
     np.testing.assert_array_equal(ts.change_times("box_friction"), [1.0])
     np.testing.assert_array_equal(ts.change_times("box_inertia"), [0.5])  # any component
     assert ts.change_times("box_mass").size == 0  # unknown: no change
+
+
+def test_known_costs_are_taken_and_only_the_others_scored():
+    from amhe_cli.estimation.mhe import known_costs
+    Q = np.array([[1.0, 2.0], [3.0, 4.0]])
+    asked = []
+
+    def evaluate(R):
+        asked.append(R.copy())
+        return R.sum(axis=1) * 10
+    score = known_costs(Q, np.array([5.0, 7.0]), evaluate)
+    np.testing.assert_array_equal(score(np.array([[3.0, 4.0], [1.0, 1.0], [1.0, 2.0 * (1 + 1e-12)]])), [7.0, 20.0, 5.0])
+    assert len(asked) == 1 and asked[0].tolist() == [[1.0, 1.0]]
+    score(Q)
+    assert len(asked) == 1

@@ -1033,6 +1033,7 @@ def test_the_line_decisions_backend_loads_before_the_wall_clock_loop_not_at_the_
     """``mhe: {attribute_device}`` on the wall clock: the decisions' own backend rolls out once before the
     first cycle (on ``cuda`` that loads MuJoCo Warp's kernels, which at the first decision held the estimator
     for 5.9 s mid-run), and the run's log says so; lock-step, and a run without such a backend, do not."""
+    from amhe_cli.estimation import attribution
     from amhe_cli.model.params import ParameterSpace
     from amhe_cli.model.scene import Scene, SceneConfig
     calls = []
@@ -1054,7 +1055,18 @@ def test_the_line_decisions_backend_loads_before_the_wall_clock_loop_not_at_the_
         monkeypatch.setattr(m._decide_pool, "rollout_candidates",
                             lambda *a: rolled.append(a) or type(m._decide_pool).rollout_candidates(m._decide_pool, *a))
         assert real(m) > 0 and len(rolled) == 1  # one candidate, one clip, on the decisions' pool alone
-        assert rolled[0][1].shape == (1, 2) and rolled[0][3].shape == (1, 10, scene.model.nu)
+        steps = int(round(0.2 / scene.model.opt.timestep))  # a clip's longest
+        assert rolled[0][1].shape == (1, 2) and rolled[0][3].shape == (1, steps, scene.model.nu)
+    # a GPU backend keeps a slot per width: each width the tests and decisions roll out is set up before the
+    # loop too (the first test that seeks a change came at the change itself, and set its slot up then)
+    monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, attribute_device="cpu")) as m:
+        rolled = []
+        monkeypatch.setattr(m._decide_pool, "rollout_candidates", lambda *a: rolled.append(a))
+        m.warm()
+        widths = [(a[1].shape[0], a[2].shape[0]) for a in rolled]
+        assert widths == [(1, 1)] + m.decision_batches() and len(widths) == 5
+        assert (2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1), attribution.CLIPS) in widths
 
 
 def test_mhe_shadow_needs_the_adaptive_mode():

@@ -308,6 +308,12 @@ class RunResult:
         extras: the plant's raw streams (:meth:`~amhe_cli.plants.base.Plant.extras`), recorded beside the trajectory.
         side: the robot side the planner and the MHE modelled at the run's end
             (:class:`~amhe_cli.control.robot_side.RobotSide`; one read mid-run, ``robot_read``, replaces the first).
+        decision_jobs: on the wall clock with ``mhe: {attribute: true}``, each change test or line decision the MHE
+            ran on its own thread (:attr:`MovingHorizonEstimator.jobs
+            <amhe_cli.estimation.mhe.MovingHorizonEstimator.jobs>`): ``(t, started, ended, batches, what)``, the
+            window's end [s], when the job started and ended [s after that window's update began, which is
+            about ``t`` on the plant's clock], its GPU batches (None off a GPU) and ``test``, ``failed`` or the
+            decision's reason; empty otherwise.
     """
 
     success: bool
@@ -329,13 +335,18 @@ class RunResult:
     extras: dict = field(default_factory=dict)
     recoveries: int = 0
     side: RobotSide | None = None
+    decision_jobs: list = field(default_factory=list)
 
     def metrics(self) -> dict:
-        """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed)."""
+        """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed; ``mhe_jobs``, the
+        :attr:`decision_jobs`, only where there were any)."""
         out = {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
                "rmse": self.rmse, "fell": bool(self.fell), "recoveries": int(self.recoveries)}
         if self.failure is not None:
             out["failure"] = self.failure
+        if self.decision_jobs:
+            out["mhe_jobs"] = [[round(t, 3), round(a, 3), round(b, 3), n, what]
+                               for t, a, b, n, what in self.decision_jobs]
         return out
 
 
@@ -829,6 +840,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         messages=messages, warnings=warnings, box_path=np.array(box_path), speed=np.stack([speeds, cmd_speeds], axis=1),
         plan_times=np.array(plan_times), failure=failure, extras=plant.extras(),
         recoveries=reflex.recoveries, side=side,
+        decision_jobs=[tuple(j) for j in estimator.mhe.jobs] if clocked and estimator is not None else [],
     )
 
 

@@ -468,6 +468,20 @@ class SplitTracker:
         R[FINE.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g[1]
         return R, g[0], g[1]
 
+    def between(self, P: np.ndarray) -> np.ndarray:
+        """(2·2·(len(FACTORS) − 1), d) the points :data:`FINE` steps from every grid point of :meth:`candidates`
+        ``P`` that lie between two of them, the mass line's then the friction line's: every point of
+        :meth:`refinements`, whichever grid point is best, is one of these or a grid point. Scored in the lines'
+        own batch (on a GPU, where width is cheap and each dependent batch costs its latency), a decision needs no
+        second batch for its refinements."""
+        n = FACTORS.size
+        step = FACTORS[1] / FACTORS[0]
+        g = (FACTORS[:-1, None] * step ** (np.array([1.0, 2.0]) / 3.0)).ravel()
+        R = np.repeat(np.asarray(P[[0, n]], dtype=float), g.size, axis=0)
+        R[:g.size, self.im] = P[0, self.im] / FACTORS[0] * g
+        R[g.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g
+        return R
+
     def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True,
                score=None) -> Decision | None:
         """Move the reference by the costs ``J`` (2·len(FACTORS),) of :meth:`candidates` ``P`` (module doc).

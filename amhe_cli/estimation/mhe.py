@@ -33,8 +33,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, LOCATE_CLIPS, LOOKBACK, NAMES as SPLIT_NAMES,
-                                             TEST_CLIPS, SplitTracker, locate)
+from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, FINE, LOCATE_CLIPS, LOOKBACK,
+                                             NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
 from amhe_cli.estimation.clips import join_clips, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
@@ -241,6 +241,24 @@ def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: i
         return None
 
 
+def known_costs(Q: np.ndarray, JQ: np.ndarray, evaluate):
+    """A scorer ``(B, d) candidates -> (B,) costs`` that takes each candidate's cost from ``JQ`` (the costs of the
+    (M, d) candidates ``Q``, already scored on the same clips) where it is one of them, to 1e-9 relative, and
+    scores the others with ``evaluate`` in one batch."""
+    Q, JQ = np.asarray(Q, dtype=float), np.asarray(JQ, dtype=float)
+
+    def score(R: np.ndarray) -> np.ndarray:
+        R = np.atleast_2d(np.asarray(R, dtype=float))
+        same = np.all(np.isclose(R[:, None], Q[None], rtol=1e-9, atol=0.0), axis=2)
+        hit = same.any(axis=1)
+        out = np.where(hit, JQ[np.argmax(same, axis=1)], np.nan)
+        if not hit.all():
+            out[~hit] = evaluate(R[~hit])
+        return out
+
+    return score
+
+
 @dataclass
 class Update:
     """One MHE update.
@@ -310,6 +328,11 @@ class MovingHorizonEstimator:
         decision_errors: failures of decisions on their own thread, one line each, not yet taken
             (:meth:`take_decision_errors`).
         decision_times: wall time [s] of each line decision made so far (:meth:`describe_decisions`).
+        jobs: each test or decision run on its own thread (:attr:`concurrent`), as ``(t, started, ended,
+            batches, what)``: the window's end [s]; when it started and ended, in seconds after that window's
+            update began; the batches of the decisions' backend (None where it keeps no count); ``test``,
+            ``failed`` or the reason of the decision it made. Where the time from a change's data to the
+            planner goes.
     """
 
     def __init__(self, scene: Scene, space: ParameterSpace, settings: MHESettings | None = None,
@@ -335,7 +358,11 @@ class MovingHorizonEstimator:
         self.concurrent = False
         self.early = self._decide_on_gpu
         self._decider: threading.Thread | None = None
-        self._queued: list[tuple[float, np.ndarray]] = []  # windows (t, mean) that ended during a decision
+        self._busy = False  # a test or decision runs on its own thread (set and cleared under _lock)
+        # windows (t, mean, traj, stop, tested) that ended while one ran: fused, in order, as it ends
+        self._queued: list[tuple[float, np.ndarray, Trajectory, int, bool]] = []
+        self._began: dict[float, float] = {}  # time.monotonic() at which the update of each recent window began
+        self.jobs: list[tuple[float, float, float, int | None, str]] = []
         self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
         self._lock = threading.Lock()
         self._reported: tuple[tuple[float, float], tuple[float, float]] | None = None  # (mass, μ), their σ
@@ -388,14 +415,29 @@ class MovingHorizonEstimator:
         the span its line decisions score (:data:`~amhe_cli.estimation.attribution.LOOKBACK`)."""
         return max(self.settings.window, LOOKBACK if self.tracker is not None else 0.0)
 
-    def warm(self, steps: int = 10) -> float:
+    def decision_batches(self) -> list[tuple[int, int]]:
+        """``(candidates, clips)`` of each kind of batch the tests and decisions roll out at full size: a change
+        test; on a GPU a test that also seeks its change, a change's location, and the lines with the points
+        between them (:meth:`SplitTracker.between`); on the CPU a change's location, the lines, their
+        refinements."""
+        lines = 2 * FACTORS.size
+        if self._decide_on_gpu:  # the lines and the points between them in one batch (:meth:`_decide`)
+            return [(5, TEST_CLIPS), (5 + lines, TEST_CLIPS + LOCATE_CLIPS), (lines + 1, LOCATE_CLIPS),
+                    (lines + 4 * (FACTORS.size - 1), ATTRIBUTION_CLIPS)]
+        return [(5, TEST_CLIPS), (lines + 1, LOCATE_CLIPS), (lines, ATTRIBUTION_CLIPS),
+                (2 * FINE.size, ATTRIBUTION_CLIPS)]
+
+    def warm(self, steps: int | None = None) -> float:
         """Load the line decisions' own backend now (``attribute_device``), not at the first decision.
 
         On ``cuda`` the first rollout loads MuJoCo Warp's kernels (seconds from Warp's cache, minutes the first
         time). Left to a run's first decision, that load held the estimator thread mid-run: on an emulated T3
         (H200) the first decision took 5.9 s, 4.8 s of it the kernels, and no window ran for 6.5 s, across the
-        mass switch, which the windows then never told apart from noise. One candidate (the current mean) is
-        rolled out ``steps`` steps from the robot standing beside the box, its results dropped.
+        mass switch, which the windows then never told apart from noise. Each width a GPU backend keeps a slot
+        for (its device model and data, and the captured step) is then set up too (:meth:`decision_batches`),
+        so the first change test that seeks a change, usually at the change itself, does not set one up on the
+        way to the planner. Each is rolled out ``steps`` steps (default: a clip's longest, 0.2 s) from the robot
+        standing beside the box at the current mean, its results dropped.
 
         Returns:
             wall time it took [s]; 0.0 without a backend of the decisions' own (they roll out on the
@@ -405,23 +447,27 @@ class MovingHorizonEstimator:
             return 0.0
         t0 = time.perf_counter()
         scene = self.scene
+        steps = steps or int(round(0.2 / scene.model.opt.timestep))
         x0 = scene.full_state(*scene.standing_state())
-        ctrl = np.tile(STAND_JOINTS, (1, steps, 1))
-        self._decide_pool.rollout_candidates(self.space, self.space.project(self.mean[None])[0], x0, ctrl,
-                                             np.array([steps]))
+        P = self.space.project(self.mean[None])[0]
+        batches = [(1, 1)] + (self.decision_batches() if self._decide_on_gpu else [])  # a CPU pool has no slots
+        for n_cand, n_clip in batches:
+            self._decide_pool.rollout_candidates(self.space, np.repeat(P, n_cand, axis=0), np.repeat(x0, n_clip, 0),
+                                                 np.tile(STAND_JOINTS, (n_clip, steps, 1)), np.full(n_clip, steps))
         return time.perf_counter() - t0
 
     def edit_models(self, edit) -> None:
         """Apply ``edit(model)`` (in place; it sets values) to the models the next updates roll out, on either
         backend: what is not an estimated parameter, such as a robot's servo read mid-run
         (:mod:`~amhe_cli.control.robot_side`). Call it between updates; during a decision on its own thread
-        (:attr:`concurrent`) the decisions' backend's model copies are edited at the first update after it."""
+        (:attr:`concurrent`) the decisions' backend's model copies are edited once it (and any it chains) ends."""
         self.pool.edit_models(edit, base=self.space.scene.model)
         if self._decide_pool is not None:
-            if self.deciding:
-                self._decide_edits.append(edit)
-            else:
-                self._decide_pool.edit_models(edit, base=self.space.scene.model)
+            with self._lock:  # no decision starts meanwhile
+                if self._busy:
+                    self._decide_edits.append(edit)
+                else:
+                    self._decide_pool.edit_models(edit, base=self.space.scene.model)
 
     def close(self) -> None:
         if self._decider is not None:
@@ -448,8 +494,9 @@ class MovingHorizonEstimator:
 
     @property
     def deciding(self) -> bool:
-        """Whether a line decision is running on its own thread (:attr:`concurrent`)."""
-        return self._decider is not None and self._decider.is_alive()
+        """Whether a change test or line decision runs on its own thread (:attr:`concurrent`), or the windows
+        that ended during one are being taken in there."""
+        return self._busy
 
     @property
     def _decide_on_gpu(self) -> bool:
@@ -463,21 +510,42 @@ class MovingHorizonEstimator:
         own: the windows' pool serves one thread)."""
         return self.concurrent and self._decide_pool is not None
 
-    def _catch_up(self) -> None:
-        """Between decisions: the model edits made during the last one go to its backend, and the windows that
-        ended meanwhile are fused, in order."""
-        for edit in self._decide_edits:
+    def _catch_up(self, queued=()) -> None:
+        """Between decisions: the model edits made during the last one go to its backend, and the windows
+        ``queued`` that ended meanwhile are fused, in order."""
+        with self._lock:
+            edits, self._decide_edits = self._decide_edits, []
+        for edit in edits:
             self._decide_pool.edit_models(edit, base=self.space.scene.model)
-        self._decide_edits.clear()
-        for tq, mq in self._queued:
-            self.tracker.fuse(tq, mq)
-        self._queued.clear()
+        for q in queued:
+            self.tracker.fuse(q[0], q[1])
 
     def _start_decider(self, traj: Trajectory, stop: int, t: float, test: bool) -> None:
         """:meth:`_test_and_decide` at the window ending at sample ``stop`` (``t`` [s]) on a thread of its own."""
+        with self._lock:
+            self._busy = True
         self._decider = threading.Thread(target=self._decide_aside, name="amhe-mhe-decide", daemon=True,
-                                         args=(traj, stop, t, self.mean.copy(), self._decide_rng, test))
+                                         args=((traj, stop, t, self.mean.copy(), self._decide_rng, test),))
         self._decider.start()
+
+    def _next_job(self) -> tuple | None:
+        """On the decisions' thread, as a test or decision ends: the windows that ended meanwhile fused, in order,
+        and the decision they made due, or else the last one's change test (where its update did not start one),
+        returned as the next job to run there now, not at the next window's update. None (the thread then
+        ends) where nothing is due and no window waits. Left to the next window, a decision due during another
+        waited up to an update period (0.5 s) more."""
+        while True:
+            with self._lock:
+                queued, self._queued = self._queued, []
+                if not queued:
+                    self._busy = False
+                    return None
+            self._catch_up(queued)
+            self._publish()
+            t, _, traj, stop, tested = queued[-1]
+            tr = self.tracker
+            if tr.due() is not None or (not tested and tr.testing(t)):
+                return traj, stop, t, self.mean.copy(), self._decide_rng, not tested
 
     def _test_early(self, traj: Trajectory, stop: int, t: float) -> bool:
         """At the start of the update of the informative window ending at sample ``stop`` (``t`` [s]), with
@@ -490,7 +558,7 @@ class MovingHorizonEstimator:
         if self.deciding:
             return False
         self._catch_up()
-        self._publish()  # the windows it fused; and what this window reports while a decision runs
+        self._publish()  # what this window reports while a decision runs
         tr = self.tracker
         tr.advance(t)  # its data are in: a decision they make due starts now too
         if tr.due() is None and not tr.testing(t):
@@ -505,9 +573,10 @@ class MovingHorizonEstimator:
         there). While one runs there, the tracker is its alone: the window waits in a queue, fused in order once
         the decision is in."""
         tr = self.tracker
-        if self.deciding:
-            self._queued.append((float(t), mu.copy()))
-            return
+        with self._lock:
+            if self._busy:
+                self._queued.append((float(t), mu.copy(), traj, stop, tested))
+                return
         self._catch_up()
         tr.fuse(t, mu)
         if not self._aside:
@@ -553,21 +622,41 @@ class MovingHorizonEstimator:
         if due is not None:
             self._decide(traj, stop, t, *due, base, rng, seek)
 
-    def _decide_aside(self, *job) -> None:
-        """:meth:`_test_and_decide` on its own thread: a failure is recorded (:attr:`decision_errors`), the
+    def _decide_aside(self, job: tuple) -> None:
+        """The decisions' thread: ``job`` (:meth:`_run_job`), then each that the windows ended meanwhile make
+        due (:meth:`_next_job`), until none is."""
+        while job is not None:
+            self._run_job(*job)
+            job = self._next_job()
+
+    def _run_job(self, traj: Trajectory, stop: int, t: float, base: np.ndarray, rng: np.random.Generator,
+                 test: bool) -> None:
+        """:meth:`_test_and_decide` on the decisions' thread: a failure is recorded (:attr:`decision_errors`), the
         reference kept; either way the split it leaves is published (:attr:`decided`, counted where a decision
-        was made or failed, not for a test alone)."""
-        made = len(self.decision_times)
+        was made or failed, not for a test alone), and when it ran goes to :attr:`jobs`."""
+        made, tests = len(self.decision_times), len(self.tracker.decisions)
+        t0, n0 = time.monotonic(), self._batches()
         failed = False
         try:
-            self._test_and_decide(*job)
+            self._test_and_decide(traj, stop, t, base, rng, test)
         except Exception as exc:  # noqa: BLE001 - the windows and the planner go on with the reference as it was
             failed = True
             with self._lock:
-                self.decision_errors.append(f"t={job[2]:.2f} s: MHE line decision failed ({type(exc).__name__}: "
+                self.decision_errors.append(f"t={t:.2f} s: MHE line decision failed ({type(exc).__name__}: "
                                             f"{exc}); keeping the reported mass and friction")
         finally:
             self._publish(decided=failed or len(self.decision_times) > made)
+            began = self._began.get(float(t), t0)
+            n1 = self._batches()
+            what = ("failed" if failed else self.tracker.decisions[-1].reason
+                    if len(self.tracker.decisions) > tests else "test")
+            self.jobs.append((float(t), t0 - began, time.monotonic() - began,
+                              None if n0 is None or n1 is None else n1 - n0, what))
+
+    def _batches(self) -> int | None:
+        """Batches the decisions' own backend ran so far (MuJoCo Warp's timing), None where it keeps no count."""
+        tm = getattr(self._decide_pool, "timing", None)
+        return None if not tm else int(tm.get("calls", 0))
 
     def _publish(self, decided: bool = False) -> None:
         """Make the tracker's split (and its σ) what :meth:`stamp` writes; ``decided``: one more decision in."""
@@ -621,8 +710,13 @@ class MovingHorizonEstimator:
                 # decision's end stays: its data may straddle a change the windows have not confirmed)
                 for retry in ((True, False) if reason != "period" else (False,)):
                     P = tr.candidates(base)
-                    if tr.decide(t, reason, P, cost.evaluate(P).data, retry,
-                                 score=lambda R: cost.evaluate(R).data) is not None:
+                    if self._decide_on_gpu:  # the refinements' points in the lines' batch: one batch fewer
+                        Q = np.vstack([P, tr.between(P)])
+                        score = known_costs(Q, cost.evaluate(Q).data, lambda R: cost.evaluate(R).data)
+                        J = score(P)
+                    else:  # on the CPU no rollout is spent on a point not read
+                        J, score = cost.evaluate(P).data, lambda R: cost.evaluate(R).data
+                    if tr.decide(t, reason, P, J, retry, score=score) is not None:
                         break
         finally:
             self.decision_times.append(time.perf_counter() - t0)
@@ -663,6 +757,8 @@ class MovingHorizonEstimator:
         ``traj`` may be a growing buffer; only samples up to ``t`` are used.
         """
         t0 = time.perf_counter()
+        self._began = {k: v for k, v in self._began.items() if k > t - LOOKBACK}
+        self._began[float(t)] = time.monotonic()
         s = self.settings
         stop = int(np.searchsorted(traj.t, t, side="right"))
         steps = self.steps
