@@ -445,6 +445,35 @@ def test_batch_equals_single_and_deterministic(scene, space2, clips, cost):
     np.testing.assert_allclose(batch.total, batch.data + batch.prior + batch.penalty)
 
 
+def test_float32_states_a_gpu_returns_are_scored_in_float32_to_the_float64_costs(cost, scene):
+    """A GPU backend's states are float32: :func:`state_error` keeps them so (half the host memory a wide batch's
+    cost walks), and the per-clip costs it sums come back float64 within 1e-4 of scoring the same states in
+    float64. The CPU's float64 states are scored as before."""
+    from amhe_cli.estimation.cost import state_error
+    from amhe_cli.io.quat import quat_normalize, quat_relative_rotvec
+    rng = np.random.default_rng(2)
+    P = cost.space.project(cost.space.mean0 + 0.2 * cost.space.std0 * rng.standard_normal((4, cost.space.dim)))[0]
+    qpos, qvel = cost.rollout(P)
+    assert qpos.dtype == np.float64
+    c = cost.clips
+    e64 = state_error(scene, c.qpos[None], c.qvel[None], qpos, qvel)
+    e32 = state_error(scene, c.qpos[None], c.qvel[None], qpos.astype(np.float32), qvel.astype(np.float32))
+    assert e64.dtype == np.float64 and e32.dtype == np.float32
+    np.testing.assert_allclose(e32, e64.astype(np.float32), atol=1e-5)
+    J64 = cost.evaluate(P).per_clip
+    real = cost.rollout
+    try:
+        cost.rollout = lambda Q: tuple(x.astype(np.float32) for x in real(Q))
+        J32 = cost.evaluate(P).per_clip
+    finally:
+        cost.rollout = real
+    assert J32.dtype == np.float64 and np.all(np.abs(J32 - J64) <= 1e-4 * np.abs(J64) + 1e-9)
+    a, b = (quat_normalize(rng.normal(size=(5, 4))).astype(np.float32) for _ in range(2))
+    r32 = quat_relative_rotvec(a, b, single=True)
+    assert r32.dtype == np.float32 and quat_relative_rotvec(a, b).dtype == np.float64  # only where asked
+    np.testing.assert_allclose(r32, quat_relative_rotvec(a.astype(float), b.astype(float)), atol=1e-5)
+
+
 def test_rollout_step_counter(cost, clips):
     before = cost.rollout_steps
     cost.evaluate(np.tile(_truth_vec(cost.space), (3, 1)))

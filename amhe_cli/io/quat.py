@@ -214,7 +214,7 @@ def quat_from_rotvec(r: np.ndarray) -> np.ndarray:
     return rotation_to_wxyz(Rotation.from_rotvec(r.reshape(-1, 3)), r.shape[:-1])
 
 
-def quat_relative_rotvec(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
+def quat_relative_rotvec(q_ref: np.ndarray, q: np.ndarray, single: bool = False) -> np.ndarray:
     """Rotation vector of ``q`` relative to ``q_ref`` in ``q_ref``'s body frame: ``2 log(q_ref* ⊗ q)``.
 
     The shorter rotation is returned (angle in [0, π]); equal to
@@ -234,12 +234,15 @@ def quat_relative_rotvec(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     Args:
         q_ref: (..., 4) unit quaternions (w, x, y, z), e.g. the reference state.
         q: (..., 4) unit quaternions, broadcast against ``q_ref``.
+        single: compute in float32 where both are float32 (a GPU backend's states in
+            :func:`~amhe_cli.estimation.cost.state_error`); else, and by default, in float64.
 
     Returns:
         (..., 3) rotation vectors [rad]; divided by a time step they are body-frame angular velocities.
     """
-    a = np.asarray(q_ref, dtype=float)
-    b = np.asarray(q, dtype=float)
+    dtype = np.float32 if single and np.result_type(q_ref, q) == np.float32 else np.float64
+    a = np.asarray(q_ref, dtype=dtype)
+    b = np.asarray(q, dtype=dtype)
     aw, ax, ay, az = np.moveaxis(a, -1, 0)
     bw, bx, by, bz = np.moveaxis(b, -1, 0)
     # a* ⊗ b, written out
@@ -247,13 +250,13 @@ def quat_relative_rotvec(q_ref: np.ndarray, q: np.ndarray) -> np.ndarray:
     xyz = np.stack([aw * bx - ax * bw - ay * bz + az * by,
                     aw * by + ax * bz - ay * bw - az * bx,
                     aw * bz - ax * by + ay * bx - az * bw], axis=-1)
-    sign = np.where(w < 0.0, -1.0, 1.0)  # shorter rotation: w >= 0
+    sign = np.where(w < 0.0, dtype(-1.0), dtype(1.0))  # shorter rotation: w >= 0
     w = w * sign
     s = np.linalg.norm(xyz, axis=-1)
     small = s < _SMALL
     # 2 atan2(s, w) / s -> 2 / w as s -> 0 (w -> 1); avoids 0/0.
     scale = np.where(small, 2.0 / np.where(small, w, 1.0), 2.0 * np.arctan2(s, w) / np.where(small, 1.0, s))
-    return xyz * (sign * scale)[..., None]
+    return xyz * (sign * scale.astype(dtype, copy=False))[..., None]
 
 
 def quat_make_continuous(q_wxyz: np.ndarray) -> np.ndarray:
