@@ -9,6 +9,8 @@
 # starting belief per task, TASK.belief.yaml, e.g. from `amhe probe --target sim`):
 #     OUT=results BELIEFS=dir benchmarks/go1_emulated_gpu.sh t3,t4 SEEDS [FIRST_SEED] [more go1_emulated_runs.py args]
 # Detached (`setsid`), it outlives the command that started it, so a later command can wait for its rows.
+# The recordings worth reading (falls, trips, changes held after 3 s; at most 4) are copied to $OUT/kept, a
+# folder a caller brings back before the host is returned with the rest.
 set -u
 OUT=${OUT:-gpu_loop}
 BELIEFS=${BELIEFS:-.}
@@ -28,5 +30,5 @@ echo "warm: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"
 rm -f "$OUT/warm.mcap" "$OUT/warm.truth.csv"
 python3 "$here/go1_emulated_runs.py" --tasks "$tasks" --modes adaptive --seeds "$seeds" --first-seed "$first" \
     --cores-per-run 6 --emulator-cores 1 --config "$config" --run-args "--belief $BELIEFS/{task}.belief.yaml" \
-    --jsonl "$OUT/rows.jsonl" --out-dir "$OUT/recordings" "$@" >> "$OUT/grid.log" 2>&1
+    --jsonl "$OUT/rows.jsonl" --out-dir "$OUT/recordings" --keep "$OUT/kept" "$@" >> "$OUT/grid.log" 2>&1
 echo "grid: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"

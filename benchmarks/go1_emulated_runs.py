@@ -59,6 +59,7 @@ import json
 import os
 import re
 import shlex
+import shutil
 import socket
 import subprocess
 import sys
@@ -195,6 +196,17 @@ def attribution_latency(row: dict) -> None:
         job = next((j for j in row.get("mhe_jobs", []) if abs(j[0] - first[0]) < 0.006 and j[4] == first[1]), None)
         if job is not None:
             g["job_s"] = [round(job[1], 2), round(job[2], 2)]
+
+
+def worth_reading(rows: list[dict], limit: int) -> list[dict]:
+    """At most ``limit`` of ``rows`` whose recordings a person will want to read afterwards: the runs that fell,
+    then those that tripped, then those whose change held the bounds latest after it (never first, then past 3 s,
+    latest first). On a lent host the recordings go with it: stop 70's one fall was not read so."""
+    def late(r: dict) -> float:
+        held = [g.get("within_after_s", -1.0) for g in r.get("mhe", []) if "swaps" in g]
+        return max((np.inf if h is None else h for h in held), default=-1.0)
+    ranked = sorted(rows, key=lambda r: (not r.get("fell"), not r.get("trip"), -late(r)))
+    return [r for r in ranked if r.get("fell") or r.get("trip") or late(r) > 3.0][:limit]
 
 
 def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> str:
@@ -398,6 +410,10 @@ def main() -> None:
     ap.add_argument("--label", default=None,
                     help="tag every row of this grid (e.g. the config or machine it ran with): --table keeps "
                          "rows with different labels apart")
+    ap.add_argument("--keep", default=None, metavar="DIR",
+                    help="copy the recordings worth reading (falls, trips, changes held after 3 s; at most "
+                         "--keep-max) here at the end, e.g. a folder that comes back from a lent host")
+    ap.add_argument("--keep-max", type=int, default=4)
     ap.add_argument("--table", nargs="+", default=None, metavar="JSONL",
                     help="print the table of the runs in these --jsonl files and exit")
     args = ap.parse_args()
@@ -450,6 +466,13 @@ def main() -> None:
                 out.write(line + "\n")
                 out.flush()
     table(rows, tasks, modes)
+    if args.keep:
+        os.makedirs(args.keep, exist_ok=True)
+        for r in worth_reading(rows, args.keep_max):
+            src = os.path.join(args.out_dir, recording_name(r["task"], r["mode"], r["seed"], args.label))
+            if os.path.exists(src):
+                shutil.copy(src, args.keep)
+                print(f"kept {os.path.basename(src)} in {args.keep}", flush=True)
 
 
 if __name__ == "__main__":

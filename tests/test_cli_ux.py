@@ -369,6 +369,16 @@ def test_the_emulated_grid_says_how_much_data_a_change_took_and_how_long_its_spl
     assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] is None
 
 
+def test_the_emulated_grid_keeps_the_recordings_worth_reading_falls_first(emulated_grid):
+    """``--keep``: a fall, then a trip, then the changes held latest after 3 s (never first); none held in time."""
+    def row(seed, fell=False, trip=False, held=2.0):
+        return {"seed": seed, "fell": fell, "trip": trip, "mhe": [{"from": 0.0}, {"swaps": [], "within_after_s": held}]}
+    rows = [row(0), row(1, held=3.4), row(2, held=None), row(3, trip=True), row(4, fell=True, held=2.5),
+            row(5, held=2.99), {"seed": 6, "fell": False, "trip": False, "mhe": []}]
+    assert [r["seed"] for r in emulated_grid.worth_reading(rows, 10)] == [4, 3, 2, 1]
+    assert [r["seed"] for r in emulated_grid.worth_reading(rows, 2)] == [4, 3]
+
+
 def test_the_emulated_grid_names_each_label_s_recordings_apart(emulated_grid):
     """``benchmarks/go1_emulated_runs.py``: two grids side by side into one ``--out-dir`` (two codes, run for run)
     write one file per run each, not one file at once."""
