@@ -387,6 +387,18 @@ def test_a_decision_the_windows_make_due_during_another_starts_as_that_one_ends(
         first, chained = mhe.jobs
         began = mhe._began  # time.monotonic() at each window's update start: the jobs' times are after it
         assert 0 <= began[ts[2]] + chained[1] - (began[ts[0]] + first[2]) < 0.1  # started as the first ended
+        # taking the queued windows in fails: reported, and the thread is never left marked busy (the windows
+        # would queue for ever, no decision made again)
+        gate.clear()
+        u = mhe.update(step_log, ts[2] + 0.5)
+        assert mhe.deciding
+        mhe.update(step_log, ts[2] + 1.0)  # queued
+        monkeypatch.setattr(tr, "fuse", lambda *a: (_ for _ in ()).throw(RuntimeError("fusion broke")))
+        gate.set()
+        mhe._decider.join(120)
+        errors = mhe.take_decision_errors()
+        assert not mhe.deciding and not mhe._queued and len(errors) == 1 and "fusion broke" in errors[0]
+        assert not u.skipped
 
 
 # -- outputs and errors through the CLI ------------------------------------------

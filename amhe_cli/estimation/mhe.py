@@ -625,16 +625,23 @@ class MovingHorizonEstimator:
     def _decide_aside(self, job: tuple) -> None:
         """The decisions' thread: ``job`` (:meth:`_run_job`), then each that the windows ended meanwhile make
         due (:meth:`_next_job`), until none is."""
-        while job is not None:
-            self._run_job(*job)
-            job = self._next_job()
+        try:
+            while job is not None:
+                self._run_job(*job)
+                job = self._next_job()
+        except Exception as exc:  # noqa: BLE001 - taking the windows in failed: never leave the thread marked busy
+            with self._lock:
+                self.decision_errors.append(f"MHE line decisions: taking in the windows failed ({type(exc).__name__}: "
+                                            f"{exc}); the next window's update goes on without them")
+                self._queued.clear()
+                self._busy = False
 
     def _run_job(self, traj: Trajectory, stop: int, t: float, base: np.ndarray, rng: np.random.Generator,
                  test: bool) -> None:
         """:meth:`_test_and_decide` on the decisions' thread: a failure is recorded (:attr:`decision_errors`), the
         reference kept; either way the split it leaves is published (:attr:`decided`, counted where a decision
         was made or failed, not for a test alone), and when it ran goes to :attr:`jobs`."""
-        made, tests = len(self.decision_times), len(self.tracker.decisions)
+        made, recorded = len(self.decision_times), len(self.tracker.decisions)
         t0, n0 = time.monotonic(), self._batches()
         failed = False
         try:
@@ -649,7 +656,7 @@ class MovingHorizonEstimator:
             began = self._began.get(float(t), t0)
             n1 = self._batches()
             what = ("failed" if failed else self.tracker.decisions[-1].reason
-                    if len(self.tracker.decisions) > tests else "test")
+                    if len(self.tracker.decisions) > recorded else "test")
             self.jobs.append((float(t), t0 - began, time.monotonic() - began,
                               None if n0 is None or n1 is None else n1 - n0, what))
 
