@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/change_attribution.py LOG [LOG ...] [--delay 0.5] [--window 3] [--clips N] [--draws 4]
-        [--jobs 2] [--out rows.jsonl]
+        [--horizon LO,HI] [--jobs 2] [--out rows.jsonl]
 
 Through 1 mm motion capture the online MHE tracks the friction force m·μ after a change but not its split
 (docs/evaluation.md, "The issue's grids on one version"). Where one parameter changes at a time (a box
@@ -44,7 +44,7 @@ def one(job: tuple) -> dict:
     from amhe_cli.estimation.problem import load_problem
     from amhe_cli.estimation.replay import truth_series
     warnings.simplefilter("ignore")
-    log, draw, delay, window, n_clips = job
+    log, draw, delay, window, n_clips, span = job
     pr = load_problem(log, params=NAMES)
     truth = truth_series(log, pr.traj)
     changes = [(float(c[-1]), n) for n in NAMES if len(c := truth.change_times(n))]
@@ -55,7 +55,7 @@ def one(job: tuple) -> dict:
     after = {n: float(truth.at(n, np.array([t_c + 0.2]))[0]) for n in NAMES}
     t0 = t_c + delay
     t1 = min(t0 + window, float(pr.traj.t[-1]))
-    n, horizon, _ = clip_plan(pr.traj, n_clips)  # identify's clip length for this log's noise
+    n, horizon, _ = clip_plan(pr.traj, n_clips, span)  # identify's clip length for this log's noise, or as given
     clips = sample_clips(pr.traj, pr.scene, n, horizon, rng=np.random.default_rng(draw), t_range=(t0, t1))
     weights = StateWeights.for_log(pr.traj, dict(IdentifySettings().sigma))
     out = {"log": log, "draw": draw, "window": [round(t0, 2), round(t1, 2)], "changed": changed,
@@ -95,9 +95,14 @@ def main() -> None:
     ap.add_argument("--window", type=float, default=3.0, help="window length [s]")
     ap.add_argument("--clips", type=int, default=None, help="clips per draw (default: identify's for the log)")
     ap.add_argument("--draws", type=int, default=4, help="draws of clips per log")
+    ap.add_argument("--horizon", default=None, metavar="LO,HI",
+                    help="clip lengths [s] (default: identify's for the log's noise, 0.1-0.2 s on a noisy one)")
     from window_information import rows_main  # beside this script
-    rows_main(ap, lambda a: [(log, d, a.delay, a.window, a.clips) for log in a.logs for d in range(a.draws)],
-              one, table)
+
+    def jobs(a):
+        span = None if a.horizon is None else tuple(float(x) for x in a.horizon.split(","))
+        return [(log, d, a.delay, a.window, a.clips, span) for log in a.logs for d in range(a.draws)]
+    rows_main(ap, jobs, one, table)
 
 if __name__ == "__main__":
     main()
