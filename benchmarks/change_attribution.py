@@ -58,7 +58,8 @@ def one(job: tuple) -> dict:
     n, horizon, _ = clip_plan(pr.traj, n_clips, span)  # identify's clip length for this log's noise, or as given
     clips = sample_clips(pr.traj, pr.scene, n, horizon, rng=np.random.default_rng(draw), t_range=(t0, t1))
     weights = StateWeights.for_log(pr.traj, dict(IdentifySettings().sigma))
-    out = {"log": log, "draw": draw, "window": [round(t0, 2), round(t1, 2)], "changed": changed,
+    out = {"log": log, "draw": draw, "window": [round(t0, 2), round(t1, 2)], "horizon": list(horizon),
+           "clips": len(clips.horizon), "changed": changed,
            "before": before, "after": after}
     with RolloutCost(pr.scene, pr.space, clips, weights, prior_weight=0.0, nthread=1) as cost:
         for hyp, free in (("H_mass", "box_mass"), ("H_mu", "box_friction")):
