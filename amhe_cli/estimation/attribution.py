@@ -45,10 +45,10 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   that read it moved the same way open the change, or one that reads it moved by :data:`OPEN`. A change is
   decided provisionally as soon as it opens, with the lines held at the reference before it, and finally once
   :data:`SPAN` seconds of data after it are in; its attributions of one parameter are averaged, weighted by
-  the data each saw. The windows show it a second or two late, so each of its decisions for :data:`RELOCATE` seconds seeks it in the data from
-  :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and scores clips drawn afresh from
-  where it lies; a change's decisions add their lines' costs up (each scores its own clips of the data
-  since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
+  the data each saw. The windows show it a second or two late, so each of its decisions for :data:`RELOCATE`
+  seconds seeks it in the data from :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and
+  scores clips drawn afresh from where it lies; a change's decisions add their lines' costs up (each scores its
+  own clips of the data since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
   seconds after a change moved the reference the windows open no new one (they are still following it).
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
 
@@ -108,6 +108,8 @@ FACTORS = np.exp(np.linspace(np.log(1 / 3), np.log(3.0), 11))
 #: over 12 noisy recordings × 4 seeds (docs/evaluation.md "Lines compared at evaluated points"): T4 16 of
 #: 16 against 12, T3 16 of 32 against 19 (21 with the final decision by the lower line).
 FINE = np.array([-2.0, -1.0, 1.0, 2.0]) / 3.0
+#: Ratio of two neighbouring :data:`FACTORS`.
+GRID_STEP = FACTORS[1] / FACTORS[0]
 #: Clips a line decision draws, as ``identify`` draws them for the log's noise (its 32, of 0.1–0.2 s on a
 #: noisy log). Half as many, on a replay of the live clock, lost the mass switch more often.
 CLIPS = 32
@@ -459,14 +461,10 @@ class SplitTracker:
         ``R`` (2·len(FINE), d) the mass line's then the friction line's, ``g_*`` (len(FINE),) their factors
         (:data:`FINE` steps from the best grid point, kept on the line)."""
         n = FACTORS.size
-        step = FACTORS[1] / FACTORS[0]
         J = np.where(np.isfinite(J), np.asarray(J, dtype=float), np.inf)
-        g = [np.clip(FACTORS[int(np.argmin(J[i * n:(i + 1) * n]))] * step ** FINE, FACTORS[0], FACTORS[-1])
+        g = [np.clip(FACTORS[int(np.argmin(J[i * n:(i + 1) * n]))] * GRID_STEP ** FINE, FACTORS[0], FACTORS[-1])
              for i in (0, 1)]
-        R = np.repeat(np.asarray(P[[0, n]], dtype=float), FINE.size, axis=0)
-        R[:FINE.size, self.im] = P[0, self.im] / FACTORS[0] * g[0]
-        R[FINE.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g[1]
-        return R, g[0], g[1]
+        return self._on_lines(P, *g), g[0], g[1]
 
     def between(self, P: np.ndarray) -> np.ndarray:
         """(2·2·(len(FACTORS) − 1), d) the points :data:`FINE` steps from every grid point of :meth:`candidates`
@@ -474,12 +472,16 @@ class SplitTracker:
         :meth:`refinements`, whichever grid point is best, is one of these or a grid point. Scored in the lines'
         own batch (on a GPU, where width is cheap and each dependent batch costs its latency), a decision needs no
         second batch for its refinements."""
+        g = (FACTORS[:-1, None] * GRID_STEP ** FINE[FINE > 0]).ravel()
+        return self._on_lines(P, g, g)
+
+    def _on_lines(self, P: np.ndarray, g_mass: np.ndarray, g_friction: np.ndarray) -> np.ndarray:
+        """(len(g_mass) + len(g_friction), d): the points at factors ``g_*`` of :data:`FACTORS`' scale on the mass
+        line of :meth:`candidates` ``P``, then on its friction line (the other parameter held as there)."""
         n = FACTORS.size
-        step = FACTORS[1] / FACTORS[0]
-        g = (FACTORS[:-1, None] * step ** (np.array([1.0, 2.0]) / 3.0)).ravel()
-        R = np.repeat(np.asarray(P[[0, n]], dtype=float), g.size, axis=0)
-        R[:g.size, self.im] = P[0, self.im] / FACTORS[0] * g
-        R[g.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g
+        R = np.repeat(np.asarray(P[[0, n]], dtype=float), [g_mass.size, g_friction.size], axis=0)
+        R[:g_mass.size, self.im] = P[0, self.im] / FACTORS[0] * g_mass
+        R[g_mass.size:, self.iu] = P[n, self.iu] / FACTORS[0] * g_friction
         return R
 
     def decide(self, t: float, reason: str, P: np.ndarray, J: np.ndarray, retry: bool = True,

@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, FINE, LOCATE_CLIPS, LOOKBACK,
+from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK,
                                              NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
 from amhe_cli.estimation.clips import join_clips, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
@@ -416,16 +416,12 @@ class MovingHorizonEstimator:
         return max(self.settings.window, LOOKBACK if self.tracker is not None else 0.0)
 
     def decision_batches(self) -> list[tuple[int, int]]:
-        """``(candidates, clips)`` of each kind of batch the tests and decisions roll out at full size: a change
-        test; on a GPU a test that also seeks its change, a change's location, and the lines with the points
-        between them (:meth:`SplitTracker.between`); on the CPU a change's location, the lines, their
-        refinements."""
+        """``(candidates, clips)`` of each kind of batch the tests and decisions roll out at full size on a GPU
+        backend of their own (:meth:`warm` sets each up): a change test, a test that also seeks its change, a
+        change's location, and the lines with the points between them (:meth:`SplitTracker.between`)."""
         lines = 2 * FACTORS.size
-        if self._decide_on_gpu:  # the lines and the points between them in one batch (:meth:`_decide`)
-            return [(5, TEST_CLIPS), (5 + lines, TEST_CLIPS + LOCATE_CLIPS), (lines + 1, LOCATE_CLIPS),
-                    (lines + 4 * (FACTORS.size - 1), ATTRIBUTION_CLIPS)]
-        return [(5, TEST_CLIPS), (lines + 1, LOCATE_CLIPS), (lines, ATTRIBUTION_CLIPS),
-                (2 * FINE.size, ATTRIBUTION_CLIPS)]
+        return [(5, TEST_CLIPS), (5 + lines, TEST_CLIPS + LOCATE_CLIPS), (lines + 1, LOCATE_CLIPS),
+                (lines + 4 * (FACTORS.size - 1), ATTRIBUTION_CLIPS)]
 
     def warm(self, steps: int | None = None) -> float:
         """Load the line decisions' own backend now (``attribute_device``), not at the first decision.
