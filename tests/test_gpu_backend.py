@@ -19,7 +19,8 @@ from amhe_cli.control.maneuver import lunge_schedule
 from amhe_cli.control.robot_side import RobotSide, write_robot
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.clips import sample_clips
-from amhe_cli.estimation.cost import RolloutCost
+from amhe_cli.estimation.cost import RolloutCost, state_error
+from amhe_cli.io.quat import quat_relative_rotvec
 from amhe_cli.model import device as dev
 from amhe_cli.model import rollout_warp as rw
 from amhe_cli.model.params import PARAMETERS, ParameterSpace
@@ -237,6 +238,30 @@ def test_noslip_and_unsupported_integrator_are_refused(scene):
     rw.check_scene(scene.model)  # the shipped scene is accepted
 
 
+def test_dof_layout_reads_the_cost_modules_state_error(scene):
+    """The device scorer's layout (:func:`rw.dof_layout`), read as its kernel reads it, gives the position part of
+    ``state_error`` for the Go1 + box scene: free-joint translations and body-frame rotation vectors, joints."""
+    rng = np.random.default_rng(3)
+    m = scene.model
+    qpos = np.tile(scene.model.qpos0, (2, 5, 1)) + rng.normal(0, 0.1, (2, 5, m.nq))
+    for j in range(m.njnt):
+        if m.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE:
+            a = m.jnt_qposadr[j] + 3
+            qpos[..., a:a + 4] = rng.normal(size=(2, 5, 4))
+            qpos[..., a:a + 4] /= np.linalg.norm(qpos[..., a:a + 4], axis=-1, keepdims=True)
+    ref, q = qpos[0], qpos[1]
+    qadr, rot = rw.dof_layout(m)
+    want = state_error(scene, ref, np.zeros((5, m.nv)), q, np.zeros((5, m.nv)))[:, :m.nv]
+    got = np.empty((5, m.nv))
+    for j in range(m.nv):
+        if rot[j] < 0:
+            got[:, j] = q[:, qadr[j]] - ref[:, qadr[j]]
+        else:
+            got[:, j] = quat_relative_rotvec(ref[:, qadr[j]:qadr[j] + 4], q[:, qadr[j]:qadr[j] + 4])[:, rot[j]]
+    np.testing.assert_allclose(got, want, atol=1e-12)
+    assert (rot >= 0).sum() == 6  # two free joints' orientations
+
+
 def test_world_capacity_reuses_slots_and_pads_at_most_a_quarter():
     assert rw.world_capacity(1) == 64
     assert rw.world_capacity(12 * 48) == 640
@@ -272,6 +297,30 @@ def test_gpu_cost_agrees_with_cpu(scene, clips):
     pairs = [(i, j) for i in range(len(P)) for j in range(i + 1, len(P))]
     same = np.mean([np.sign(jc[i] - jc[j]) == np.sign(jg[i] - jg[j]) for i, j in pairs])
     assert same > 0.8
+
+
+@pytest.mark.gpu
+@gpu
+def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips):
+    """``evaluate`` scored on the device (``score_candidates``) gives the per-clip sums and diverged flags the host
+    gives from the same backend's float32 states, with unobserved roles weighed zero; a clip that starts from a
+    non-finite state diverges in both."""
+    import dataclasses
+    space = ParameterSpace(scene, ("box_mass", "box_friction"))
+    P = space.project(space.vector(TRUTH) + np.random.default_rng(4).normal(0, 1, (5, 2)) * [1.5, 0.1])[0]
+    observed = clips.observed.copy()
+    observed[1, 10:30, 2] = False  # a gap in the box's poses
+    init = clips.initial_state.copy()
+    init[3, 1 + scene.box_qpos[0]] = np.nan  # a clip that cannot be rolled out
+    odd = dataclasses.replace(clips, observed=observed, initial_state=init)
+    with rw.WarpRollout(scene.model) as w, RolloutCost(scene, space, odd, prior_weight=0.0, pool=w) as cost:
+        dev_ = cost.evaluate(P)
+        cost.score_on_device = False
+        host = cost.evaluate(P)
+    assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, 3].all() and host.diverged.sum() == 5
+    ok = ~host.diverged
+    np.testing.assert_allclose(dev_.per_clip[ok], host.per_clip[ok], rtol=1e-5)
+    assert np.unique(host.per_clip[ok].round(6)).size > 10  # the candidates and clips differ
 
 
 @pytest.mark.gpu

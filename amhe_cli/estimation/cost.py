@@ -218,7 +218,14 @@ class RolloutCost:
             whichever backend, and everything after that is this module's.
 
     Deterministic: MuJoCo rollouts are, so the same ``P`` gives the same ``J``.
+
+    On a backend that scores on its device (``score_candidates``, the ``cuda`` one), :meth:`evaluate` sends the
+    clips' recorded states and ``sqrt(W_x)`` there and gets back only the (B, N_c) sums: the same function,
+    its states never copied to the host (``score_on_device`` False scores them here instead, for comparison).
     """
+
+    #: Score on the backend's device where it offers ``score_candidates`` (:meth:`evaluate`).
+    score_on_device = True
 
     def __init__(self, scene: Scene, space: ParameterSpace, clips: Clips, weights: StateWeights | None = None,
                  prior_weight: float = 1.0, pool: RolloutPool | None = None, nthread: int | None = None,
@@ -322,8 +329,16 @@ class RolloutCost:
         if P.shape[1] != self.space.dim:
             raise ValueError(f"candidates have {P.shape[1]} columns, expected {self.space.dim} ({self.space.labels})")
         Q, moved = self.space.project(P)
-        res, diverged = self.residuals(Q)
-        per_clip = np.where(diverged, DIVERGED, np.einsum("bnhk,bnhk->bn", res, res).astype(float))
+        score = getattr(self.pool, "score_candidates", None) if self.score_on_device else None
+        if score is None:
+            res, diverged = self.residuals(Q)
+            sums = np.einsum("bnhk,bnhk->bn", res, res).astype(float)
+        else:
+            c = self.clips
+            sums, diverged, steps = score(self.space, Q, c.initial_state, c.control, c.horizon, c.qpos, c.qvel,
+                                          self._sqrt_wmask32)
+            self.rollout_steps += steps
+        per_clip = np.where(diverged, DIVERGED, sums)
         data = per_clip.sum(axis=1)
         prior = self.prior_weight * (((Q - self.prior_mean) / self.prior_std) ** 2).sum(axis=1)
         penalty = PENALTY * moved

@@ -32,6 +32,9 @@ MuJoCo Warp model with ``B · N_c`` worlds (world ``b · N_c + k`` = candidate
   NaN"; :func:`friction_floor` raises it to ``MJ_MINMU`` only where the max
   rule provably never uses it (every partner at least as large, or of higher
   priority), so neither backend's answer changes (tested on the CPU).
+* **Scored on the device.** :meth:`WarpRollout.score_candidates` adds each step's weighted squared state
+  error to a per-world sum inside the captured step (the cost module's ``state_error`` and ``W_x``, written
+  out as a Warp kernel over :func:`dof_layout`), so only the (B, N_c) sums come back, not every state.
 * **Refusals.** :func:`check_scene` refuses, with one line, a scene the
   backend cannot simulate faithfully; what MuJoCo Warp's own ``put_model``
   refuses is passed on as one line too.
@@ -371,6 +374,33 @@ def candidate_fields(space, P: np.ndarray, models: list[mujoco.MjModel],
     return res
 
 
+def dof_layout(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
+    """How each dof's position error is read from ``qpos``: the tangent layout of
+    :func:`~amhe_cli.estimation.cost.state_error` for any scene.
+
+    Returns:
+        (nv,) qpos address and (nv,) rotation component per dof: -1 for a coordinate (a hinge or slide
+        angle, a free joint's translation), the address its error is ``qpos[a] - qpos_ref[a]`` of; 0, 1, 2
+        for a component of the rotation vector ``2 log(q_ref* ⊗ q)`` of the quaternion (w, x, y, z) at that
+        address (a free or ball joint's orientation).
+    """
+    qadr = np.zeros(model.nv, dtype=np.int32)
+    rot = np.full(model.nv, -1, dtype=np.int32)
+    J = mujoco.mjtJoint
+    for j in range(model.njnt):
+        q, v, kind = int(model.jnt_qposadr[j]), int(model.jnt_dofadr[j]), model.jnt_type[j]
+        if kind == J.mjJNT_FREE:
+            qadr[v:v + 3] = q + np.arange(3)
+            qadr[v + 3:v + 6] = q + 3
+            rot[v + 3:v + 6] = np.arange(3)
+        elif kind == J.mjJNT_BALL:
+            qadr[v:v + 3] = q
+            rot[v:v + 3] = np.arange(3)
+        else:
+            qadr[v] = q
+    return qadr, rot
+
+
 def world_capacity(nworld: int) -> int:
     """Worlds to allocate for ``nworld``: at least 64, rounded up to a quarter of the power of two below
     it (576 -> 640, 1200 -> 1280, 16368 -> 16384), so a batch that shrinks or grows a little reuses its
@@ -390,6 +420,7 @@ class _Slot:
         self.graph = None
         self.hcap = self.ncap = 0
         self.clipkey = None
+        self.refkey = None
         self.fieldkey = None
 
 
@@ -447,6 +478,7 @@ class WarpRollout:
         self.timing = {"setup": 0.0, "fields": 0.0, "upload": 0.0, "steps": 0.0, "readback": 0.0, "calls": 0,
                        "slots": 0, "graphs": 0}
         self.nstate = mujoco.mj_stateSize(model, mujoco.mjtState.mjSTATE_FULLPHYSICS)
+        self._dof = dof_layout(model)
 
     def describe(self) -> str:
         """One line for the device announcement."""
@@ -561,8 +593,15 @@ class WarpRollout:
                     s.flat[f] = wp.array(ptr=arr.ptr, dtype=float, shape=(cap, k), device=self.device)
                 s.nclip = wp.zeros(1, dtype=int)
                 s.step = wp.zeros(1, dtype=int)
-            # the overflow flags' page-locked host twin (read back with the states, in this backend's stream)
-            s.flags_host = wp.empty(cap, dtype=s.d.overflow.dtype, device="cpu", pinned=self.device.is_cuda)
+                s.dof_qadr = wp.array(self._dof[0], dtype=int)
+                s.dof_rot = wp.array(self._dof[1], dtype=int)
+                s.acc = wp.zeros(cap, dtype=wp.float64)
+                s.bad = wp.zeros(cap, dtype=int)
+            # page-locked host twins of the overflow flags and the scores (read back in this backend's stream)
+            pinned = self.device.is_cuda
+            s.flags_host = wp.empty(cap, dtype=s.d.overflow.dtype, device="cpu", pinned=pinned)
+            s.acc_host = wp.empty(cap, dtype=wp.float64, device="cpu", pinned=pinned)
+            s.bad_host = wp.empty(cap, dtype=int, device="cpu", pinned=pinned)
         except (NotImplementedError, ValueError) as e:
             raise AmheError(f"--device cuda cannot simulate this scene: {str(e).splitlines()[0]} "
                             "(use --device cpu)") from None
@@ -581,12 +620,18 @@ class WarpRollout:
             s.ctrl_in = wp.zeros((s.ncap, s.hcap, m.nu), dtype=float)
             s.qpos_out = wp.zeros((s.cap, s.hcap, m.nq), dtype=float)
             s.qvel_out = wp.zeros((s.cap, s.hcap, m.nv), dtype=float)
+            # what score_candidates scores against: the clips' recorded states, sqrt(W_x) and horizons (a
+            # horizon of 0 scores nothing: a call for states alone leaves the sums unread)
+            s.ref_qpos = wp.zeros((s.ncap, s.hcap, m.nq), dtype=float)
+            s.ref_qvel = wp.zeros((s.ncap, s.hcap, m.nv), dtype=float)
+            s.sqrt_w = wp.zeros((s.ncap, s.hcap, 2 * m.nv), dtype=float)
+            s.horizon = wp.zeros(s.ncap, dtype=int)
         # page-locked host twins, so the read-back is one DMA at full bus speed (a pageable copy is staged)
         pinned = self.device.is_cuda
         s.qpos_host = wp.empty(s.qpos_out.shape, dtype=float, device="cpu", pinned=pinned)
         s.qvel_host = wp.empty(s.qvel_out.shape, dtype=float, device="cpu", pinned=pinned)
         s.graph = None  # it writes the old buffers
-        s.clipkey = None
+        s.clipkey = s.refkey = None
 
     def _upload_clips(self, s: _Slot, initial_state: np.ndarray, control: np.ndarray) -> None:
         """Recorded starts and controls to the device, once per clip set (a changed set is uploaded anew)."""
@@ -605,6 +650,31 @@ class WarpRollout:
         s.ctrl_in.assign(ctrl)
         s.nclip.assign(np.array([n], dtype=np.int32))
         s.clipkey = key
+
+    def _upload_refs(self, s: _Slot, horizon: np.ndarray, ref_qpos: np.ndarray, ref_qvel: np.ndarray,
+                     sqrt_w: np.ndarray) -> None:
+        """What the clips are scored against to the device, once per set (as :meth:`_upload_clips`)."""
+        arrays = [np.ascontiguousarray(a) for a in (horizon, ref_qpos, ref_qvel, sqrt_w)]
+        h = hashlib.blake2b(digest_size=16)
+        for a in arrays:
+            h.update(repr((a.shape, a.dtype.str)).encode())
+            h.update(a.tobytes())
+        key = h.digest()
+        if key == s.refkey:
+            return
+        n, hmax = ref_qpos.shape[:2]
+
+        def padded(a, width):
+            out = np.zeros((s.ncap, s.hcap, width), dtype=np.float32)
+            out[:n, :hmax] = a
+            return out
+        hor = np.zeros(s.ncap, dtype=np.int32)
+        hor[:n] = np.minimum(horizon, hmax)
+        s.ref_qpos.assign(padded(ref_qpos, ref_qpos.shape[-1]))
+        s.ref_qvel.assign(padded(ref_qvel, ref_qvel.shape[-1]))
+        s.sqrt_w.assign(padded(sqrt_w, sqrt_w.shape[-1]))
+        s.horizon.assign(hor)
+        s.refkey = key
 
     def _graph(self, s: _Slot):
         """One step of slot ``s`` (set the step's control, step, record, advance the counter), captured as a
@@ -654,15 +724,19 @@ class WarpRollout:
         m, d = self.host, s.d
         self.wp.launch(K.reset_worlds, dim=s.cap, inputs=[s.nclip, m.nq, m.nv, s.init_in],
                        outputs=[d.time, d.qpos, d.qvel, d.qacc_warmstart, d.overflow, s.step])
+        self.wp.launch(K.clear_scores, dim=s.cap, inputs=[], outputs=[s.acc, s.bad])
 
     def _step(self, s: _Slot) -> None:
-        """One step of every world: the step's control, ``mjw.step``, the state recorded, the counter advanced."""
+        """One step of every world: the step's control, ``mjw.step``, the state recorded and scored, the counter
+        advanced."""
         wp, m, d = self.wp, self.host, s.d
         from amhe_cli.model import _warp_kernels as K
         wp.launch(K.set_ctrl, dim=(s.cap, m.nu), inputs=[s.step, s.nclip, s.ctrl_in], outputs=[d.ctrl])
         self.mjw.step(s.m, d)
         wp.launch(K.record, dim=(s.cap, max(m.nq, m.nv)), inputs=[s.step, d.qpos, d.qvel],
                   outputs=[s.qpos_out, s.qvel_out])
+        wp.launch(K.score, dim=s.cap, inputs=[s.step, s.nclip, s.horizon, d.qpos, d.qvel, s.ref_qpos, s.ref_qvel,
+                                              s.sqrt_w, s.dof_qadr, s.dof_rot], outputs=[s.acc, s.bad])
         wp.launch(K.advance, dim=1, inputs=[s.step])
 
     def _launch(self, s: _Slot, hmax: int) -> None:
@@ -692,6 +766,18 @@ class WarpRollout:
             wp.copy(s.flags_host, s.d.overflow, count=nworld)
         self._sync()
         return (np.array(s.qpos_host.numpy()[:nworld, :hmax]), np.array(s.qvel_host.numpy()[:nworld, :hmax]),
+                np.array(s.flags_host.numpy()[:nworld]))
+
+    def _readback_scores(self, s: _Slot, nworld: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The error sums (nworld,), diverged flags (nworld,) and overflow flags (nworld,) of the last launch,
+        as new host arrays (as :meth:`_readback`)."""
+        wp = self.wp
+        with self._scope():
+            wp.copy(s.acc_host, s.acc, count=nworld)
+            wp.copy(s.bad_host, s.bad, count=nworld)
+            wp.copy(s.flags_host, s.d.overflow, count=nworld)
+        self._sync()
+        return (np.array(s.acc_host.numpy()[:nworld]), np.array(s.bad_host.numpy()[:nworld]),
                 np.array(s.flags_host.numpy()[:nworld]))
 
     def _set_fields(self, s: _Slot, fields: dict[str, np.ndarray], ncand: int) -> None:
@@ -728,7 +814,37 @@ class WarpRollout:
         """
         return self._rollout_candidates(space, P, initial_state, control, horizon)
 
-    def _rollout_candidates(self, space, P, initial_state, control, horizon):
+    def score_candidates(self, space, P: np.ndarray, initial_state: np.ndarray, control: np.ndarray,
+                         horizon: np.ndarray, ref_qpos: np.ndarray, ref_qvel: np.ndarray,
+                         sqrt_w: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """Roll every candidate out over every clip and score it on the device: the data term of paper eq. (1)
+        per candidate and clip, without the states coming back.
+
+        Args:
+            space, P, initial_state, control, horizon: as :meth:`rollout_candidates`.
+            ref_qpos: (N_c, H_max, nq) and ref_qvel: (N_c, H_max, nv) the clips' recorded states after each step.
+            sqrt_w: (N_c, H_max, 2 nv) ``sqrt(W_x)`` per tangent component (zero where unobserved), the layout
+                of :func:`~amhe_cli.estimation.cost.state_error` (:func:`dof_layout`).
+        Returns:
+            (B, N_c) float64 sums ``Σ_t ||x^r_{t+1} - x_{t+1}(p)||²_{W_x}`` over each clip's horizon, computed in
+            float32 per step (as the host scores a GPU's float32 states), (B, N_c) bool diverged (a state
+            non-finite or beyond 1 km, or its world's buffers overflowed at the scene's bound; its sum is
+            meaningless), and the steps simulated.
+
+        Raises:
+            AmheError: as :meth:`rollout_candidates`.
+        """
+        m = self.host
+        n, hmax = len(horizon), int(control.shape[1])
+        if ref_qpos.shape != (n, hmax, m.nq) or ref_qvel.shape != (n, hmax, m.nv) or sqrt_w.shape != (n, hmax,
+                                                                                                       2 * m.nv):
+            raise ValueError(f"score_candidates: references {ref_qpos.shape}, {ref_qvel.shape}, {sqrt_w.shape}; "
+                             f"expected ({n}, {hmax}, {m.nq}), ({n}, {hmax}, {m.nv}), ({n}, {hmax}, {2 * m.nv})")
+        return self._rollout_candidates(space, P, initial_state, control, horizon,
+                                        (np.asarray(horizon), ref_qpos, ref_qvel, sqrt_w))
+
+    def _rollout_candidates(self, space, P, initial_state, control, horizon, refs=None):
+        """:meth:`rollout_candidates` (``refs`` None) or :meth:`score_candidates` (``refs`` its references)."""
         P = np.atleast_2d(P)
         if id(space) not in self._spaces_checked:
             check_space(space)
@@ -742,6 +858,8 @@ class WarpRollout:
             s = self._slot(nworld)
             self._buffers(s, n, hmax)
             self._upload_clips(s, initial_state, control)
+            if refs is not None:
+                self._upload_refs(s, *refs)
             self._graph(s)
         m, tm = self.host, self.timing
         t0 = time.perf_counter()
@@ -760,8 +878,12 @@ class WarpRollout:
             self._launch(s, hmax)
         self._sync()
         t3 = time.perf_counter()
-        qpos, qvel, flags = self._readback(s, nworld, hmax)
-        qpos, qvel = qpos.reshape(B, n, hmax, m.nq), qvel.reshape(B, n, hmax, m.nv)
+        if refs is None:
+            qpos, qvel, flags = self._readback(s, nworld, hmax)
+            qpos, qvel = qpos.reshape(B, n, hmax, m.nq), qvel.reshape(B, n, hmax, m.nv)
+        else:
+            acc, diverged, flags = self._readback_scores(s, nworld)
+            acc, diverged = acc.reshape(B, n), diverged.reshape(B, n) != 0
         tm["fields"] += t1 - t0
         tm["upload"] += t2 - t1
         tm["steps"] += t3 - t2
@@ -778,8 +900,11 @@ class WarpRollout:
                 # more than the scene's bound: only a rollout gone wild gets here; its states become NaN,
                 # which the cost module charges as diverged, and the user is told
                 lost = ((flags & sum(OVERFLOW_BITS)) != 0).reshape(B, n)
-                qpos[lost] = np.nan
-                qvel[lost] = np.nan
+                if refs is None:
+                    qpos[lost] = np.nan
+                    qvel[lost] = np.nan
+                else:
+                    diverged |= lost
                 print(f"amhe: warning: MuJoCo Warp buffers overflowed at the scene's bound ({what}): those "
                       "rollouts count as diverged", file=sys.stderr, flush=True)
                 bad = {}
@@ -788,7 +913,9 @@ class WarpRollout:
             print(f"amhe: MuJoCo Warp buffers overflowed ({what}): growing to nconmax {self.nconmax}, "
                   f"njmax {self.njmax} and repeating the batch", file=sys.stderr, flush=True)
             self.close()  # every slot again, with the grown buffer sizes
-            return self.rollout_candidates(space, P, initial_state, control, horizon)
+            return self._rollout_candidates(space, P, initial_state, control, horizon, refs)
+        if refs is not None:
+            return acc, diverged, nworld * hmax
         for k, h in enumerate(np.asarray(horizon, dtype=int)):
             qpos[:, k, h:] = qpos[:, k, h - 1:h]
             qvel[:, k, h:] = qvel[:, k, h - 1:h]
