@@ -301,10 +301,11 @@ def test_gpu_cost_agrees_with_cpu(scene, clips):
 
 @pytest.mark.gpu
 @gpu
-def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips):
+def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tmp_path, monkeypatch):
     """``evaluate`` scored on the device (``score_candidates``) gives the per-clip sums and diverged flags the host
-    gives from the same backend's float32 states, with unobserved roles weighed zero; a clip that starts from a
-    non-finite state diverges in both."""
+    gives from the very states of that launch (float32, read back from the slot), with unobserved roles weighed
+    zero; a clip that starts from a non-finite state, or 5 km away, diverges in both. (Two launches on a GPU can differ: its
+    atomics order contacts otherwise, so the states compared are one launch's.)"""
     import dataclasses
     space = ParameterSpace(scene, ("box_mass", "box_friction"))
     P = space.project(space.vector(TRUTH) + np.random.default_rng(4).normal(0, 1, (5, 2)) * [1.5, 0.1])[0]
@@ -312,12 +313,21 @@ def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips):
     observed[1, 10:30, 2] = False  # a gap in the box's poses
     init = clips.initial_state.copy()
     init[3, 1 + scene.box_qpos[0]] = np.nan  # a clip that cannot be rolled out
+    init[5, 1 + scene.box_qpos[0]] = 5e3  # nor can one beyond the 1 km bound
+    monkeypatch.chdir(tmp_path)  # MuJoCo's warning about the NaN goes to MUJOCO_LOG.TXT in the working directory
     odd = dataclasses.replace(clips, observed=observed, initial_state=init)
+    n, hmax = len(odd.horizon), odd.control.shape[1]
     with rw.WarpRollout(scene.model) as w, RolloutCost(scene, space, odd, prior_weight=0.0, pool=w) as cost:
         dev_ = cost.evaluate(P)
+        qpos, qvel, _ = w._readback(w._slots[rw.world_capacity(len(P) * n)], len(P) * n, hmax)
+        qpos, qvel = qpos.reshape(len(P), n, hmax, -1), qvel.reshape(len(P), n, hmax, -1)
+        for k, h in enumerate(odd.horizon):  # as rollout_candidates returns them
+            qpos[:, k, h:], qvel[:, k, h:] = qpos[:, k, h - 1:h], qvel[:, k, h - 1:h]
         cost.score_on_device = False
+        cost.rollout = lambda Q: (qpos, qvel)
         host = cost.evaluate(P)
-    assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, 3].all() and host.diverged.sum() == 5
+    assert qpos.dtype == np.float32
+    assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, [3, 5]].all() and host.diverged.sum() == 10
     ok = ~host.diverged
     np.testing.assert_allclose(dev_.per_clip[ok], host.per_clip[ok], rtol=1e-5)
     assert np.unique(host.per_clip[ok].round(6)).size > 10  # the candidates and clips differ
