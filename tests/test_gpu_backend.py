@@ -329,7 +329,8 @@ def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tm
     assert qpos.dtype == np.float32
     assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, [3, 5]].all() and host.diverged.sum() == 10
     ok = ~host.diverged
-    np.testing.assert_allclose(dev_.per_clip[ok], host.per_clip[ok], rtol=1e-5)
+    # atol: a clip of a box at rest sums float32 rounding alone (~1e-9), which a GPU's fused multiply-adds round otherwise
+    np.testing.assert_allclose(dev_.per_clip[ok], host.per_clip[ok], rtol=1e-5, atol=1e-7)
     assert np.unique(host.per_clip[ok].round(6)).size > 10  # the candidates and clips differ
 
 
