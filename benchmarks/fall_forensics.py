@@ -29,6 +29,11 @@ fall from there without the wall clock? (A config's ``latency`` makes every plan
 does with it.) Comparing versions (``PYTHONPATH`` at another checkout) on the
 same recorded states tries a change against the situation that broke a robot.
 
+``--commands-log REC --tasks T [--cycle 0.025]`` recomputes the task's command at a recorded run's states every
+cycle, its phase and step-clear flag carried from cycle to cycle as the loop carries them, and counts how often a
+step clear of the box and a turn to face the push began, with the flag carried and without (the code before
+:data:`~amhe_cli.control.tasks.CLEAR_HYSTERESIS`): how much of a run's to and fro the command's own thresholds made.
+
 Modes other than ``true`` start from the task's probe belief (as ``amhe evaluate``); ``--beliefs DIR``
 keeps the probed beliefs there, so a grid split over several calls (``--first-seed``) probes once.
 """
@@ -182,6 +187,35 @@ def replay_log(a, config: dict, task_name: str, before: list[float]) -> None:
           f"{max(r['max_tilt_deg'] for r in rows):.1f}°")
 
 
+def commands_log(a, config: dict, task_name: str) -> None:
+    """``--commands-log``: onsets of the command's step clear and turn to face along a recorded run, per second
+    of the run, with the step-clear flag carried (as the loop does) and without; one JSON line."""
+    from amhe_cli.control.closed_loop import measured_command
+    task, _ = run_settings(task_name, "true", config)
+    try:
+        traj = read_log(a.commands_log)
+    except AmheError as exc:
+        sys.exit(f"fall_forensics: {exc}")
+    sc = Scene(SceneConfig())
+    qpos, _ = sc.qpos_qvel(traj)
+    cycles = np.arange(traj.t[0], traj.t[-1], a.cycle)
+    idx = np.searchsorted(traj.t, cycles).clip(0, len(traj.t) - 1)
+    row = {"log": a.commands_log, "cycle_s": a.cycle, "cycles": len(idx)}
+    for name, carry in (("carried", True), ("not_carried", False)):
+        phase, clearing, onsets = None, False, {"clearing": [], "beside": []}
+        was = dict.fromkeys(onsets, False)
+        for t, i in zip(cycles, idx):
+            cmd, _ = measured_command(task, sc, qpos[i], float(t), phase=phase, clearing=clearing and carry)
+            phase, clearing = cmd["phase"], bool(cmd.get("clearing", False))
+            for flag in onsets:
+                if cmd.get(flag, False) and not was[flag]:
+                    onsets[flag].append(round(float(t), 2))
+                was[flag] = bool(cmd.get(flag, False))
+        row[name] = {flag: {"onsets": len(v), "within_0.2_s": int(np.sum(np.diff(v) < 0.2)) if len(v) > 1 else 0,
+                            "first": v[:1], "last": v[-1:]} for flag, v in onsets.items()}
+    print(json.dumps(row), flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tasks", default="t2")
@@ -205,6 +239,10 @@ def main() -> None:
                     help="run the task's own loop from this recorded run's states instead (--replay-from: seconds "
                          "before its end; --duration: seconds, default 5; --seeds: planner seeds; the task from --tasks)")
     ap.add_argument("--replay-from", default="3", help="seconds before the recording's end to replay from, e.g. 4,3")
+    ap.add_argument("--commands-log", default=None, metavar="REC",
+                    help="count the command's step-clear and turn onsets along this recorded run instead (--tasks: "
+                         "its task; --cycle: the control cycle [s])")
+    ap.add_argument("--cycle", type=float, default=0.025, help="control cycle for --commands-log [s]")
     a = ap.parse_args()
     config = load_config(a.config)
     tasks, modes = a.tasks.split(","), a.modes.split(",")
@@ -214,6 +252,9 @@ def main() -> None:
         return
     if a.replay_log:
         replay_log(a, config, tasks[0], [float(x) for x in a.replay_from.split(",") if x])
+        return
+    if a.commands_log:
+        commands_log(a, config, tasks[0])
         return
     beliefs = {}
     if set(modes) - {"true"}:

@@ -359,6 +359,33 @@ def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
     assert not walk.get("clearing") and walk["speed"] > 0
 
 
+
+def test_a_step_clear_of_the_box_goes_on_past_the_threshold_before_the_robot_turns():
+    """An emulated T3 run (stop 71, seed 7) flipped between stepping clear and turning 32 times in 23 s as the
+    trot's sway carried the measured clearance across TURN_CLEARANCE (0.297–0.303 m at the flips). A step clear
+    now goes on to TURN_CLEARANCE + CLEAR_HYSTERESIS; a robot not yet stepping starts only below TURN_CLEARANCE.
+    The closed loop carries the flag from cycle to cycle."""
+    from amhe_cli.control.closed_loop import measured_command
+    from amhe_cli.control.tasks import CLEAR_HYSTERESIS, TURN_CLEARANCE, box_clearance
+    task = get_task("t4")
+    box = np.array([1.9, 0.0])
+    between = box + [-0.10, -HALF_DEPTH - TURN_CLEARANCE - CLEAR_HYSTERESIS / 2]  # 0.325 m from the box's side
+    assert TURN_CLEARANCE < box_clearance(between, box, 0.0, HALF_DEPTH, HALF_DEPTH) < TURN_CLEARANCE + CLEAR_HYSTERESIS
+    turning = task.command(between, 0.0, box, HALF_DEPTH)
+    assert not turning.get("clearing") and turning["speed"] == 0.0 and abs(turning["omega"]) > 0
+    stepping = task.command(between, 0.0, box, HALF_DEPTH, clearing=True)
+    assert stepping["clearing"] and stepping["speed"] != 0.0 and stepping["omega"] == 0.0
+    beyond = box + [-0.10, -HALF_DEPTH - TURN_CLEARANCE - CLEAR_HYSTERESIS - 0.01]
+    assert not task.command(beyond, 0.0, box, HALF_DEPTH, clearing=True).get("clearing")
+    # through the loop's helper, from a measured state
+    from amhe_cli.model.scene import Scene, SceneConfig
+    sc = Scene(SceneConfig())
+    q = sc.model.qpos0.copy()
+    q[sc.base_qpos[:2]], q[sc.box_qpos[:2]] = between, box
+    assert measured_command(task, sc, q, 1.0, phase="approach", clearing=True)[0]["clearing"]
+    assert not measured_command(task, sc, q, 1.0, phase="approach")[0].get("clearing")
+
+
 def test_a_push_with_the_box_beside_the_robot_turns_to_face_it_instead_of_walking():
     """An emulated T3 fall (machine L): in the push zone, 60–100° off the push heading, the box at the
     robot's side blocked its turn; it walked on beside the box for 5 s until a hind leg caught the box's

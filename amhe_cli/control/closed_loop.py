@@ -479,18 +479,19 @@ def run_robot_side(settings: "RunSettings", belief: Belief | None, truth: dict) 
 
 
 def measured_command(task: Task, scene: Scene, qpos: np.ndarray, t: float,
-                     phase: str | None = None) -> tuple[dict, float]:
+                     phase: str | None = None, clearing: bool = False) -> tuple[dict, float]:
     """The task's command (:meth:`~amhe_cli.control.tasks.Task.command`) from a measured plant state.
 
     Args:
         qpos: (nq,) the plant's generalized positions (``scene``'s layout); t: task time [s].
         phase: the command's phase last cycle (the push zone's hysteresis), None on the first.
+        clearing: whether last cycle's command stepped clear of the box (the step's hysteresis).
     Returns:
         (command dict, the trunk's yaw [rad]).
     """
     yaw = float(quat_to_yaw(qpos[scene.base_qpos[3:]]))
     cmd = task.command(qpos[scene.base_qpos[:2]], yaw, qpos[scene.box_qpos[:2]], TASK_BOX_SIZE[0] / 2, t=t,
-                       box_yaw=float(quat_to_yaw(qpos[scene.box_qpos[3:]])), phase=phase)
+                       box_yaw=float(quat_to_yaw(qpos[scene.box_qpos[3:]])), phase=phase, clearing=clearing)
     return cmd, yaw
 
 
@@ -633,6 +634,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         next_update = s.mhe.window
         pending = False
         phase = task_phase = None  # the command's phase as said, and the task's own (before any recovery)
+        task_clearing = False  # whether the task's own command stepped clear of the box last cycle
         flags = dict.fromkeys(COMMAND_NOTES, False)  # Task.command's flags as of the last cycle
         compute_ema = None  # EMA of the planner's compute time [s]: the wall-clock plan's lead
         prev_rows, prev_start = None, 0.0  # the last plan and the plant time its row 0 was due
@@ -671,8 +673,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             if safety_status is not None and view:
                 view.safety(t, safety_status())
             box_xy = q[sc.box_qpos[:2]]
-            cmd, yaw = measured_command(task, sc, q, t, phase=task_phase)
-            task_phase = cmd["phase"]
+            cmd, yaw = measured_command(task, sc, q, t, phase=task_phase, clearing=task_clearing)
+            task_phase, task_clearing = cmd["phase"], bool(cmd.get("clearing", False))
             text = reflex.update(t, q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[3:]], forecast)
             if text is not None:
                 (warn if reflex.active else note)(f"t={t:.2f} s: {text}")

@@ -73,6 +73,12 @@ TURN_IN_PLACE = 0.6
 #: a leg met the box and the trunk rolled or pitched past 25° (docs/fall_prevention.md, "Turning beside the
 #: box"). Turning on the spot keeps the trunk's origin where it is, so a turn begun this far stays this far.
 TURN_CLEARANCE = 0.30
+#: Approach phase: a step clear of the box (:data:`TURN_CLEARANCE`) goes on until the trunk's origin is this much
+#: further out [m] before the robot turns. Without it the command flipped between stepping and turning as the
+#: trot's sway and the poses' noise carried the measured clearance across 0.30 m: in an emulated T3 run (stop
+#: 71, seed 7, a box turned 57° near the goal) the step clear began 32 times in 23 s, 8 of them within 0.2 s of
+#: the last, at 0.297–0.303 m, and the robot worked round the box for 22 s before it fell.
+CLEAR_HYSTERESIS = 0.05
 #: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
 #: heading (backward where the box is ahead): the trot has no sidestep.
 CLEAR_SPEED = 0.15
@@ -283,7 +289,7 @@ class Task:
 
     def command(self, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, half_depth: float,
                 half_width: float | None = None, t: float = 0.0, box_yaw: float = 0.0,
-                phase: str | None = None) -> dict:
+                phase: str | None = None, clearing: bool = False) -> dict:
         """Per-cycle targets for the planner's cost and the gait.
 
         Walking tasks have two phases, chosen from where the robot stands in the
@@ -323,6 +329,8 @@ class Task:
             box_yaw: the box's yaw [rad] (the push zone's front edge; the one-leg push: which face the foot meets).
             phase: the phase this returned last cycle (``"push"``, ``"approach"``), for the zone's
                 hysteresis; None (a first cycle, or a stateless caller): the zone's own edges.
+            clearing: whether this returned ``clearing`` last cycle: a step clear of the box goes on to
+                :data:`TURN_CLEARANCE` + :data:`CLEAR_HYSTERESIS` before the robot turns.
         Returns:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
@@ -374,7 +382,7 @@ class Task:
             if abs(_yaw_error(yaw, base_yaw)) > TURN_IN_PLACE and abs(bearing) > BESIDE:
                 # the box is beside the robot, not ahead of its head: turn to face the push first
                 return self._turn_on_the_spot({**out, "box_speed": 0.0, "beside": True}, base_xy, base_yaw,
-                                              box_xy, box_yaw, half_depth, half_width)
+                                              box_xy, box_yaw, half_depth, half_width, clearing)
             return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
@@ -387,15 +395,16 @@ class Task:
         out = {**out, "direction": d, "box_speed": 0.0, "phase": "approach", "waypoint": waypoint, "yaw": yaw}
         if abs(_yaw_error(yaw, base_yaw)) <= TURN_IN_PLACE:
             return {**out, "speed": self.speed * near, "omega": _turn(yaw, base_yaw)}
-        return self._turn_on_the_spot(out, base_xy, base_yaw, box_xy, box_yaw, half_depth, half_width)
+        return self._turn_on_the_spot(out, base_xy, base_yaw, box_xy, box_yaw, half_depth, half_width, clearing)
 
     @staticmethod
     def _turn_on_the_spot(out: dict, base_xy: np.ndarray, base_yaw: float, box_xy: np.ndarray, box_yaw: float,
-                          half_x: float, half_y: float) -> dict:
+                          half_x: float, half_y: float, clearing: bool = False) -> dict:
         """:meth:`command`'s targets for a turn on the spot toward ``out['yaw']`` [rad] (speed 0) — or, with
-        the trunk's origin nearer the box's footprint than :data:`TURN_CLEARANCE` [m], a step along the
-        heading away from the box first (``clearing`` True; backward where the box is ahead)."""
-        if box_clearance(base_xy, box_xy, box_yaw, half_x, half_y) < TURN_CLEARANCE:
+        the trunk's origin nearer the box's footprint than :data:`TURN_CLEARANCE` [m] (or, ``clearing`` already,
+        than :data:`TURN_CLEARANCE` + :data:`CLEAR_HYSTERESIS`), a step along the heading away from the box first
+        (``clearing`` True; backward where the box is ahead)."""
+        if box_clearance(base_xy, box_xy, box_yaw, half_x, half_y) < TURN_CLEARANCE + clearing * CLEAR_HYSTERESIS:
             heading = np.array([np.cos(base_yaw), np.sin(base_yaw)])
             away = -1.0 if float((box_xy - base_xy) @ heading) > 0 else 1.0
             return {**out, "waypoint": base_xy + away * heading * TURN_CLEARANCE, "yaw": float(base_yaw),
