@@ -362,9 +362,9 @@ def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
 
 def test_a_step_clear_of_the_box_goes_on_past_the_threshold_before_the_robot_turns():
     """An emulated T3 run (stop 71, seed 7) flipped between stepping clear and turning 32 times in 23 s as the
-    trot's sway carried the measured clearance across TURN_CLEARANCE (0.297–0.303 m at the flips). A step clear
-    now goes on to TURN_CLEARANCE + CLEAR_HYSTERESIS; a robot not yet stepping starts only below TURN_CLEARANCE.
-    The closed loop carries the flag from cycle to cycle."""
+    trot's sway carried the measured clearance across TURN_CLEARANCE (0.297–0.303 m at the flips). An approach's
+    step clear now goes on to TURN_CLEARANCE + CLEAR_HYSTERESIS; a robot not yet stepping starts only below
+    TURN_CLEARANCE; a push's turn beside the box keeps the one threshold. The closed loop carries the flag."""
     from amhe_cli.control.closed_loop import measured_command
     from amhe_cli.control.tasks import CLEAR_HYSTERESIS, TURN_CLEARANCE, box_clearance
     task = get_task("t4")
@@ -377,6 +377,10 @@ def test_a_step_clear_of_the_box_goes_on_past_the_threshold_before_the_robot_tur
     assert stepping["clearing"] and stepping["speed"] != 0.0 and stepping["omega"] == 0.0
     beyond = box + [-0.10, -HALF_DEPTH - TURN_CLEARANCE - CLEAR_HYSTERESIS - 0.01]
     assert not task.command(beyond, 0.0, box, HALF_DEPTH, clearing=True).get("clearing")
+    # not in the push: a longer step beside the box left the push zone (push and approach took turns)
+    pushing = box - [HALF_DEPTH + TURN_CLEARANCE + CLEAR_HYSTERESIS / 2, 0.0]
+    beside = task.command(pushing, np.radians(-75.0), box, HALF_DEPTH, phase="push", clearing=True)
+    assert beside["phase"] == "push" and beside["beside"] and not beside.get("clearing")
     # through the loop's helper, from a measured state
     from amhe_cli.model.scene import Scene, SceneConfig
     sc = Scene(SceneConfig())

@@ -329,8 +329,8 @@ class Task:
             box_yaw: the box's yaw [rad] (the push zone's front edge; the one-leg push: which face the foot meets).
             phase: the phase this returned last cycle (``"push"``, ``"approach"``), for the zone's
                 hysteresis; None (a first cycle, or a stateless caller): the zone's own edges.
-            clearing: whether this returned ``clearing`` last cycle: a step clear of the box goes on to
-                :data:`TURN_CLEARANCE` + :data:`CLEAR_HYSTERESIS` before the robot turns.
+            clearing: whether this returned ``clearing`` last cycle: an approach's step clear of the box goes on
+                to :data:`TURN_CLEARANCE` + :data:`CLEAR_HYSTERESIS` before the robot turns.
         Returns:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
@@ -381,8 +381,10 @@ class Task:
             bearing = _yaw_error(float(np.arctan2(near_point[1], near_point[0])), base_yaw)
             if abs(_yaw_error(yaw, base_yaw)) > TURN_IN_PLACE and abs(bearing) > BESIDE:
                 # the box is beside the robot, not ahead of its head: turn to face the push first
+                # (no step-clear hysteresis here: a longer step beside the box left the push zone, and the push and
+                # the approach took turns, 5 times in 10 s in a lock-step T3 run)
                 return self._turn_on_the_spot({**out, "box_speed": 0.0, "beside": True}, base_xy, base_yaw,
-                                              box_xy, box_yaw, half_depth, half_width, clearing)
+                                              box_xy, box_yaw, half_depth, half_width)
             return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
