@@ -188,8 +188,8 @@ def replay_log(a, config: dict, task_name: str, before: list[float]) -> None:
 
 
 def commands_log(a, config: dict, task_name: str) -> None:
-    """``--commands-log``: onsets of the command's step clear and turn to face along a recorded run, per second
-    of the run, with the step-clear flag carried (as the loop does) and without; one JSON line."""
+    """``--commands-log``: how often the command's step clear and turn to face began along a recorded run (and how
+    often within 0.2 s of the last), with the step-clear flag carried (as the loop does) and without; one JSON line."""
     from amhe_cli.control.closed_loop import measured_command
     task, _ = run_settings(task_name, "true", config)
     try:

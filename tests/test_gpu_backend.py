@@ -304,8 +304,8 @@ def test_gpu_cost_agrees_with_cpu(scene, clips):
 def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tmp_path, monkeypatch):
     """``evaluate`` scored on the device (``score_candidates``) gives the per-clip sums and diverged flags the host
     gives from the very states of that launch (float32, read back from the slot), with unobserved roles weighed
-    zero; a clip that starts from a non-finite state, or 5 km away, diverges in both. (Two launches on a GPU can differ: its
-    atomics order contacts otherwise, so the states compared are one launch's.)"""
+    zero; a clip that starts from a non-finite state, or 5 km away, diverges in both. (Two launches on a GPU can
+    differ: its atomics order contacts otherwise, so the states compared are one launch's.)"""
     import dataclasses
     space = ParameterSpace(scene, ("box_mass", "box_friction"))
     P = space.project(space.vector(TRUTH) + np.random.default_rng(4).normal(0, 1, (5, 2)) * [1.5, 0.1])[0]
@@ -329,7 +329,8 @@ def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tm
     assert qpos.dtype == np.float32
     assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, [3, 5]].all() and host.diverged.sum() == 10
     ok = ~host.diverged
-    # atol: a clip of a box at rest sums float32 rounding alone (~1e-9), which a GPU's fused multiply-adds round otherwise
+    # atol: a clip of a box at rest sums float32 rounding alone (~1e-9), which a GPU's fused multiply-adds round
+    # otherwise
     np.testing.assert_allclose(dev_.per_clip[ok], host.per_clip[ok], rtol=1e-5, atol=1e-7)
     assert np.unique(host.per_clip[ok].round(6)).size > 10  # the candidates and clips differ
 

@@ -677,8 +677,8 @@ class WarpRollout:
         s.refkey = key
 
     def _graph(self, s: _Slot):
-        """One step of slot ``s`` (set the step's control, step, record, advance the counter), captured as a
-        CUDA graph on first need; a call launches it ``H_max`` times.
+        """One step of slot ``s`` (set the step's control, step, record and score, advance the counter), captured
+        as a CUDA graph on first need; a call launches it ``H_max`` times.
 
         One step, not the whole loop: capturing records every kernel launch of
         every step from Python (about 27 ms a step here), so a 65-step loop
