@@ -39,13 +39,8 @@ import numpy as np
 
 def same_launch(gpu, cost, P):
     """``cost.evaluate(P)`` scored on the host from the states of ``gpu``'s last launch (the same rollouts)."""
-    from amhe_cli.model.rollout_warp import world_capacity
     c = cost.clips
-    n, hmax, B = len(c.horizon), c.control.shape[1], len(P)
-    qpos, qvel, _ = gpu._readback(gpu._slots[world_capacity(B * n)], B * n, hmax)
-    qpos, qvel = qpos.reshape(B, n, hmax, -1), qvel.reshape(B, n, hmax, -1)
-    for k, h in enumerate(c.horizon):
-        qpos[:, k, h:], qvel[:, k, h:] = qpos[:, k, h - 1:h], qvel[:, k, h - 1:h]
+    qpos, qvel = gpu.last_states(len(P), c.horizon, c.control.shape[1])
     rollout, cost.rollout = cost.rollout, lambda Q: (qpos, qvel)
     flag, cost.score_on_device = cost.score_on_device, False
     try:

@@ -316,13 +316,10 @@ def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tm
     init[5, 1 + scene.box_qpos[0]] = 5e3  # nor can one beyond the 1 km bound
     monkeypatch.chdir(tmp_path)  # MuJoCo's warning about the NaN goes to MUJOCO_LOG.TXT in the working directory
     odd = dataclasses.replace(clips, observed=observed, initial_state=init)
-    n, hmax = len(odd.horizon), odd.control.shape[1]
+    hmax = odd.control.shape[1]
     with rw.WarpRollout(scene.model) as w, RolloutCost(scene, space, odd, prior_weight=0.0, pool=w) as cost:
         dev_ = cost.evaluate(P)
-        qpos, qvel, _ = w._readback(w._slots[rw.world_capacity(len(P) * n)], len(P) * n, hmax)
-        qpos, qvel = qpos.reshape(len(P), n, hmax, -1), qvel.reshape(len(P), n, hmax, -1)
-        for k, h in enumerate(odd.horizon):  # as rollout_candidates returns them
-            qpos[:, k, h:], qvel[:, k, h:] = qpos[:, k, h - 1:h], qvel[:, k, h - 1:h]
+        qpos, qvel = w.last_states(len(P), odd.horizon, hmax)
         cost.score_on_device = False
         cost.rollout = lambda Q: (qpos, qvel)
         host = cost.evaluate(P)

@@ -401,6 +401,23 @@ def dof_layout(model: mujoco.MjModel) -> tuple[np.ndarray, np.ndarray]:
     return qadr, rot
 
 
+def _digest(*arrays: np.ndarray) -> bytes:
+    """A key for a set of arrays (shapes, dtypes and bytes): what a slot last uploaded, to skip the same again."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(repr((a.shape, a.dtype.str)).encode())
+        h.update(a.tobytes())
+    return h.digest()
+
+
+def _hold_past_horizon(qpos: np.ndarray, qvel: np.ndarray, horizon: np.ndarray) -> None:
+    """Rows of (B, N_c, H, ·) states past each clip's horizon replaced by its last state, in place (as on the CPU)."""
+    for k, h in enumerate(np.asarray(horizon, dtype=int)):
+        qpos[:, k, h:] = qpos[:, k, h - 1:h]
+        qvel[:, k, h:] = qvel[:, k, h - 1:h]
+
+
 def world_capacity(nworld: int) -> int:
     """Worlds to allocate for ``nworld``: at least 64, rounded up to a quarter of the power of two below
     it (576 -> 640, 1200 -> 1280, 16368 -> 16384), so a batch that shrinks or grows a little reuses its
@@ -635,9 +652,7 @@ class WarpRollout:
 
     def _upload_clips(self, s: _Slot, initial_state: np.ndarray, control: np.ndarray) -> None:
         """Recorded starts and controls to the device, once per clip set (a changed set is uploaded anew)."""
-        key = (initial_state.shape, control.shape,
-               hashlib.blake2b(np.ascontiguousarray(initial_state).tobytes()
-                               + np.ascontiguousarray(control).tobytes(), digest_size=16).digest())
+        key = _digest(initial_state, control)
         if key == s.clipkey:
             return
         m, n, hmax = self.host, len(initial_state), control.shape[1]
@@ -654,12 +669,7 @@ class WarpRollout:
     def _upload_refs(self, s: _Slot, horizon: np.ndarray, ref_qpos: np.ndarray, ref_qvel: np.ndarray,
                      sqrt_w: np.ndarray) -> None:
         """What the clips are scored against to the device, once per set (as :meth:`_upload_clips`)."""
-        arrays = [np.ascontiguousarray(a) for a in (horizon, ref_qpos, ref_qvel, sqrt_w)]
-        h = hashlib.blake2b(digest_size=16)
-        for a in arrays:
-            h.update(repr((a.shape, a.dtype.str)).encode())
-            h.update(a.tobytes())
-        key = h.digest()
+        key = _digest(horizon, ref_qpos, ref_qvel, sqrt_w)
         if key == s.refkey:
             return
         n, hmax = ref_qpos.shape[:2]
@@ -916,7 +926,16 @@ class WarpRollout:
             return self._rollout_candidates(space, P, initial_state, control, horizon, refs)
         if refs is not None:
             return acc, diverged, nworld * hmax
-        for k, h in enumerate(np.asarray(horizon, dtype=int)):
-            qpos[:, k, h:] = qpos[:, k, h - 1:h]
-            qvel[:, k, h:] = qvel[:, k, h - 1:h]
+        _hold_past_horizon(qpos, qvel, horizon)
         return qpos, qvel, nworld * hmax
+
+    def last_states(self, ncand: int, horizon: np.ndarray, hmax: int) -> tuple[np.ndarray, np.ndarray]:
+        """The states of the last launch for ``ncand`` candidates × ``len(horizon)`` clips of ``hmax`` steps,
+        (B, N_c, H, nq) and (B, N_c, H, nv), as :meth:`rollout_candidates` returns them: after a
+        :meth:`score_candidates` call, the very rollouts it scored (a second launch can differ: the GPU's
+        atomics order contacts otherwise)."""
+        n = len(horizon)
+        qpos, qvel, _ = self._readback(self._slots[world_capacity(ncand * n)], ncand * n, hmax)
+        qpos, qvel = qpos.reshape(ncand, n, hmax, -1), qvel.reshape(ncand, n, hmax, -1)
+        _hold_past_horizon(qpos, qvel, horizon)
+        return qpos, qvel
