@@ -46,7 +46,7 @@ def one(job: tuple) -> dict:
     sl = pr.space.slices()
     held = np.array([float(truth.at(n, np.array([t_c - 0.2]))[0]) for n in NAMES])
     tracker = SplitTracker((sl["box_mass"].start, sl["box_friction"].start), pr.space.mean0, pr.space.std0,
-                           pr.space.scale * s.sigma_init, s.sigma_floor, s.window)
+                           pr.space.scale * s.sigma_init, s.sigma_floor, s.window, s.every)
     tracker.ref = tuple(held)
     P = tracker.test_candidates(pr.space.mean0)
     rng = np.random.default_rng(draw)

@@ -144,10 +144,10 @@ def test_a_line_minimum_at_its_end_is_scored_again_re_centred_and_beyond_that_no
 
 def test_an_undecided_change_waits_for_data_after_it_then_moves_the_friction_force_not_the_split():
     tr = tracker()
-    tr.open(10.0, 1.0)
+    tr.open(10.0, 0.5)
     J = np.tile(np.abs(np.log(FACTORS / 1.5)), 2)  # both lines alike, minimum at 1.5 × the product
     P = tr.candidates(np.zeros(2))
-    d = tr.decide(11.0, "provisional", P, J)
+    d = tr.decide(10.5, "provisional", P, J)
     # too little after the change to tell which moved: nothing moves, tried again after RETRY s more data
     assert d.changed is None and tr.ref == (4.0, 0.5) and tr.pending is not None and tr.due() is None
     tr.seen += RETRY
@@ -229,7 +229,9 @@ def test_a_change_moved_back_into_a_rest_counts_only_the_pushes_after_it_as_seen
     assert tr.informative(19.8) == pytest.approx(1.5) and tr.informative(17.0) == pytest.approx(2.0)
     assert tr.informative(12.0) == pytest.approx(2.0)  # only the last LOOKBACK s are kept
     assert tr.relocate(19.8) == "provisional" and tr.seen == pytest.approx(1.5)
-    assert tr.due() == (19.8, "provisional")
+    assert tr.due() == (19.8, "provisional")  # its first decision, however late
+    tr.retry_at = tr.seen + RETRY  # undecided
+    assert tr.due() is None  # and not tried again: the next window makes the final one due
     windows(tr, 24.0, 25.5)
     assert tr.seen == pytest.approx(2.0) and tr.due() == (19.8, "change")
     # a periodic span over the rest opened at its middle: only its pushes after the middle count
@@ -239,6 +241,32 @@ def test_a_change_moved_back_into_a_rest_counts_only_the_pushes_after_it_as_seen
     P = tr.candidates(np.zeros(2))
     tr.decide(22.0, "period", P, np.tile(np.abs(np.log(FACTORS / 1.5)), 2))
     assert tr.pending[0] == pytest.approx(17.0) and tr.seen == pytest.approx(1.0)
+
+
+def test_a_change_s_final_decision_comes_at_the_window_nearest_a_span_after_it_with_no_provisional_just_before():
+    """Due at the first window past SPAN, the final decision came on 2.0–2.5 s of data, and on the wall clock
+    after a provisional one still running: the switch first attributed 3.1–3.7 s after it in three of 16
+    emulated T3 runs. It is now due at the window nearest SPAN, and an undecided provisional one is not tried
+    again the window before."""
+    for every, final in ((0.5, SPAN - 0.25), (0.25, SPAN - 0.125)):
+        tr = SplitTracker((0, 1), np.array([4.0, 0.5]), np.array([0.16, 0.015]), np.array([0.45, 0.075]), 0.01,
+                          1.0, every)
+        tr.open(10.0, 0.0)
+        seen = []
+        for k in range(1, 20):  # informative windows every ``every`` s after the change
+            tr.advance(10.0 + 1.0 + k * every)
+            due = tr.due()
+            seen.append((round(tr.seen, 3), None if due is None else due[1]))
+            if due is not None and due[1] == "change":
+                break
+            if due is not None:  # undecided: tried again after RETRY s of data
+                tr.retry_at = tr.seen + RETRY
+        assert seen[-1] == (pytest.approx(final + every / 2 if every == 0.5 else SPAN), "change")
+        assert min(abs(s - SPAN) for s, _ in seen) == pytest.approx(abs(seen[-1][0] - SPAN))  # nearest SPAN
+        provisional = [s for s, why in seen if why == "provisional"]
+        assert provisional and max(provisional) + every < final  # not tried again a window before the final one
+    with pytest.raises(AmheError, match="positive update period"):
+        SplitTracker((0, 1), np.array([4.0, 0.5]), np.array([0.16, 0.015]), np.array([0.45, 0.075]), 0.01, 1.0, 0.0)
 
 
 def test_a_change_s_decisions_add_up_so_a_longer_span_does_not_flip_a_decisive_shorter_one():

@@ -381,7 +381,8 @@ class MovingHorizonEstimator:
             if missing:
                 raise AmheError(f"mhe attribute needs {' and '.join(SPLIT_NAMES)} free; {', '.join(missing)} is not")
             self.tracker = SplitTracker((sl["box_mass"].start, sl["box_friction"].start), self.mean, space.std0,
-                                        self.std, self.settings.sigma_floor, self.settings.window)
+                                        self.std, self.settings.sigma_floor, self.settings.window,
+                                        self.settings.every)
         pull = np.empty(space.dim)
         for name, sl in space.slices().items():
             pull[sl] = self.settings.pull.get(name, DEFAULT_PULL[name])
