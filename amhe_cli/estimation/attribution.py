@@ -44,10 +44,10 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   the reference and at the friction force moved by ``exp(±CHANGE)`` along either line; two successive tests
   that read it moved the same way open the change, or one that reads it moved by :data:`OPEN`. A change is
   decided provisionally as soon as it opens, with the lines held at the reference before it, and finally at
-  the window whose data after it come nearest :data:`SPAN` seconds; its attributions of one parameter are averaged, weighted by
-  the data each saw. The windows show it a second or two late, so each of its decisions for :data:`RELOCATE`
-  seconds seeks it in the data from :data:`BACK` seconds before (:func:`locate`, over the clips' own costs) and
-  scores clips drawn afresh from where it lies; a change's decisions add their lines' costs up (each scores its
+  the window whose data after it come nearest :data:`SPAN` seconds; its attributions of one parameter are
+  averaged, weighted by the data each saw. The windows show it a second or two late, so each of its decisions
+  for :data:`RELOCATE` seconds seeks it in the data from :data:`BACK` seconds before (:func:`locate`, over the
+  clips' own costs) and scores clips drawn afresh from where it lies; a change's decisions add their lines' costs up (each scores its
   own clips of the data since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
   seconds after a change moved the reference the windows open no new one (they are still following it).
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
@@ -408,11 +408,12 @@ class SplitTracker:
 
         A pending change's final decision is due at the window whose data after it come nearest :data:`SPAN`
         (from ``SPAN − every/2``: :attr:`final_at`), and a provisional one is not tried again where the next
-        window would make the final one due (the first is made however late the change opened). Due at the first window past :data:`SPAN`, the final decision came on 2.0–2.5 s of data,
-        and on the wall clock it waited for a provisional decision still running (0.18–0.41 s in four of 16
-        emulated T3 runs on an H200): in three of them the change was first attributed by the final decision,
-        at the planner 3.1–3.7 s after the switch (docs/evaluation.md "The final decision at the span's
-        window")."""
+        window would make the final one due (the first is made however late the change opened). Due at the
+        first window past :data:`SPAN`, the final decision came on 2.0–2.5 s of data, and on the wall clock it
+        waited for a provisional decision still running (0.18–0.41 s in four of 16 emulated T3 runs on an H200):
+        in three of them the change was first attributed by the final decision, at the planner 3.1–3.7 s after
+        the switch. With it so, T3's bound held from 3 s in 16 of 16 emulated runs (docs/evaluation.md "The
+        final decision at the span's window")."""
         if self.pending is not None:
             if self.seen >= self.final_at - 1e-9:
                 return self.pending[0], "change"
