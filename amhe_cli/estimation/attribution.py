@@ -47,9 +47,10 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   the window whose data after it come nearest :data:`SPAN` seconds; its attributions of one parameter are
   averaged, weighted by the data each saw. The windows show it a second or two late, so each of its decisions
   for :data:`RELOCATE` seconds seeks it in the data from :data:`BACK` seconds before (:func:`locate`, over the
-  clips' own costs) and scores clips drawn afresh from where it lies; a change's decisions add their lines' costs up (each scores its
-  own clips of the data since it), so a longer span does not flip a decisive shorter one on one draw of clips. For :data:`QUIET`
-  seconds after a change moved the reference the windows open no new one (they are still following it).
+  clips' own costs) and scores clips drawn afresh from where it lies; a change's decisions add their lines'
+  costs up (each scores its own clips of the data since it), so a longer span does not flip a decisive shorter
+  one on one draw of clips. For :data:`QUIET` seconds after a change moved the reference the windows open no
+  new one (they are still following it).
   With no change detected the lines are scored every :data:`PERIOD` seconds of data.
 
 *Measured* (``benchmarks/mhe_accuracy.py`` without the clock, 1 mm / 0.2° motion capture, docs/evaluation.md
