@@ -93,6 +93,26 @@ def test_commands_that_act_a_tick_after_their_stamps_are_found_and_shifted(tmp_p
     assert problem.traj.meta["sensors"]["gains"]["command_delay_s"] == pytest.approx(0.002)
 
 
+def test_poses_shifted_between_joint_samples_leave_the_grid_on_the_joint_states(tmp_path, stiff_log):
+    """A pose stream shifted 3.9 ms for its lateness (as ``load_problem`` does) once moved the grid between the 2 ms
+    joint samples: each effort met the command before its own, and the gain fit read a 20 ms command delay with
+    Kp 25–60 and negative Kd on a fresh lock-step recording whose servo applied its logged 100 / 4. The grid now
+    starts at a joint-state message, so the servo law holds between samples of one clock."""
+    path = write_mcap(tmp_path / "stiff.mcap", stiff_log)
+    for shift in (0.0039, -0.0039, 0.0011):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            traj = read_log(str(path), time_offset={"base": shift, "box": shift})
+        steps = (traj.t - traj.t[0]) / traj.dt
+        joint_t0 = float(stiff_log.t[0]) - min(0.0, shift)  # the joint states' first stamp on the log's time axis
+        assert np.round((traj.t[0] - joint_t0) / traj.dt, 9) % 1 == 0  # on a joint-state stamp
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+        fit = fit_gains(traj)
+        assert fit.delay == 0.0
+        np.testing.assert_allclose(fit.kp, 63.0, rtol=1e-3)
+        np.testing.assert_allclose(fit.kd, 2.4, rtol=1e-3)
+
+
 def test_gain_fit_agrees_silently_and_needs_efforts():
     traj = _lunge_log()
     kp, kd, warns = applied_gains(traj, fit_gains(traj))

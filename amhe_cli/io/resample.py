@@ -1,6 +1,13 @@
 """Resample unpacked series onto one uniform grid: step 4 of :mod:`~amhe_cli.io.reader`.
 
-The grid covers the overlap of the roles: linear interpolation of positions,
+The grid covers the overlap of the roles, from its first joint-state message, so that on a log whose joint
+states come every ``dt`` the joint positions, velocities and efforts are taken as measured and the commands
+held against them as stamped: the servo law that :mod:`~amhe_cli.estimation.gains` fits and the rollouts
+replay holds between samples of one clock. (Started at the latest stream's first message, a pose stream
+shifted 3.9 ms for its lateness by ``load_problem`` moved a lock-step recording's grid between its 2 ms joint
+samples: each effort then met the command before its own, the command-delay fit went to the end of its range,
+20 ms, with Kp 25–60 and negative Kd on six joints, and the MHE read the box's friction force 28 % low
+throughout; docs/reference.md#identification.) Then: linear interpolation of positions,
 slerp of orientations (``scipy.spatial.transform.Slerp`` over each pose stream's
 messages), zero-order hold of the commands; velocities come from the log where
 it has them, else from a backward difference of the resampled poses. Base and
@@ -157,6 +164,11 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
     cmd = series["joint_commands"]
     cmd_period = cmd.period_ns()
     start = max(int(series[r].t_ns[0]) for r in REQUIRED_ROLES)
+    js = series["joint_states"]
+    # the grid on the robot's own samples from there (module doc)
+    first = int(np.searchsorted(js.t_ns, start, side="left"))
+    if first < len(js.t_ns):
+        start = int(js.t_ns[first])
     # A held command stays valid for one period after its last message.
     ends = [int(series[r].t_ns[-1]) for r in REQUIRED_ROLES if r != "joint_commands"]
     end = min(*ends, int(cmd.t_ns[-1] + cmd_period))
@@ -175,7 +187,6 @@ def _resample(series: dict[str, _Series], dt: float, dt_ns: int, smooth: int | s
     measured: dict[str, bool] = {}
 
     # Joint states.
-    js = series["joint_states"]
     i, u = _bracket(js.t_ns, grid)
     out["joint_pos"] = _lerp(js.fields["q"], i, u)
     measured["joint_states"] = "dq" in js.fields
