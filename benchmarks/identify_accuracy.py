@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/identify_accuracy.py LOG [LOG ...] [--seeds 8] [--jobs 4] [--threads 1]
+    python benchmarks/identify_accuracy.py LOG [LOG ...] [--seeds 8] [--first-seed 0] [--jobs 4] [--threads 1]
         [--params box_mass,box_inertia,box_friction] [--out rows.jsonl] [--identify-arg --clips=24 ...] [--device cuda]
 
 The truth of each LOG is read from ``<LOG stem>.truth.yaml`` beside it
@@ -133,6 +133,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("logs", nargs="+", help="LOG or LOG=TRUTH.yaml")
     ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--first-seed", type=int, default=0, help="seeds run: FIRST_SEED .. FIRST_SEED + SEEDS - 1")
     ap.add_argument("--jobs", type=int, default=1)
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--params", default=None)
@@ -162,7 +163,7 @@ def main() -> None:
         smooth = a.smooth if a.smooth == "auto" else int(a.smooth)
         jobs += [{"log": log, "seed": s, "tag": a.tag, "sigma": sigma, "smooth": smooth, "threads": a.threads,
                   "device": a.device, "params": a.params, "identify": ident, "truth": truth}
-                 for s in range(a.seeds)]
+                 for s in range(a.first_seed, a.first_seed + a.seeds)]
     rows = []
     out = open(a.out, "a") if a.out else None
     with ProcessPoolExecutor(max_workers=a.jobs) as ex:
