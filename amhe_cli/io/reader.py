@@ -6,7 +6,7 @@ The pipeline, one step per module:
 2. **assign roles** to its topics (:mod:`~amhe_cli.io.roles`);
 3. **unpack** the messages of each role into time-stamped arrays
    (:mod:`~amhe_cli.io.unpack`, joint names matched by :mod:`~amhe_cli.io.joints`);
-4. **resample** onto a uniform grid covering the overlap of the roles
+4. **resample** onto a uniform grid covering the overlap of the roles, from its first joint-state message
    (:mod:`~amhe_cli.io.resample`).
 
 :func:`inspect_log` runs only steps 1 and 2 on message timestamps (no
