@@ -111,6 +111,28 @@ def test_poses_shifted_between_joint_samples_leave_the_grid_on_the_joint_states(
         np.testing.assert_allclose(fit.kd, 2.4, rtol=1e-3)
 
 
+def test_a_delay_at_the_end_of_the_search_is_not_taken(tmp_path, stiff_log):
+    """Commands stamped 30 ms before they acted, beyond the 20 ms searched: the fit's best delay is the longest
+    searched, which says only that the search missed; no joint's gains or plateau is trusted, the commands are
+    taken as stamped and the logged gains kept, with a warning (the safe reading of a servo it cannot fit)."""
+    k = 15  # 30 ms of 2 ms steps
+    early = replace(stiff_log, ctrl=np.concatenate([stiff_log.ctrl[k:], np.repeat(stiff_log.ctrl[-1:], k, axis=0)]),
+                    meta={})
+    fit = fit_gains(early)
+    assert fit.at_edge and fit.delay == 0.0 and not fit.ok.any() and not np.isfinite(fit.limit).any()
+    assert not fit_gains(stiff_log).at_edge
+    kp, kd, warns = applied_gains(early, fit)
+    assert warns == [] and np.allclose(kp, 55.0) and np.allclose(kd, 3.0)
+    path = write_mcap(tmp_path / "early30.mcap", early)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        problem = load_problem(str(path), payload=False, nthread=2)
+    assert any("the longest searched" in str(w.message) for w in caught)
+    np.testing.assert_allclose(problem.traj.ctrl[5:-5], early.ctrl[5:-5])  # not shifted
+    assert problem.traj.meta["sensors"]["gains"]["delay_at_search_edge"] is True
+    np.testing.assert_allclose(problem.scene.config.kp, 55.0)
+
+
 def test_gain_fit_agrees_silently_and_needs_efforts():
     traj = _lunge_log()
     kp, kd, warns = applied_gains(traj, fit_gains(traj))

@@ -32,7 +32,7 @@ modelled (docs/reference.md#identification).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -76,6 +76,9 @@ class GainFit:
             NaN where they did not (the module docstring).
         delay: how long after its stamp a command acted on the servo [s] (:func:`fit_gains`).
         peak: (12,) the largest |effort| each joint delivered [N·m] (None: not read).
+        at_edge: the servo law fitted best at the longest delay searched (:data:`MAX_DELAY`): the delay lies
+            beyond the search or the efforts follow no such law, so no joint is ``ok``, no plateau is read and
+            ``delay`` is 0 (:func:`fit_gains`).
     """
 
     kp: np.ndarray
@@ -89,6 +92,7 @@ class GainFit:
     limit: np.ndarray | None = None
     delay: float = 0.0
     peak: np.ndarray | None = None
+    at_edge: bool = False
 
     def to_dict(self) -> dict:
         """Plain-type summary for beliefs and ``--json``."""
@@ -98,7 +102,7 @@ class GainFit:
                 "samples": self.samples.tolist(), "ok": self.ok.tolist(),
                 "torque_limit_nm": None if self.limit is None else
                 [None if not np.isfinite(x) else round(float(x), 3) for x in self.limit],
-                "command_delay_s": round(float(self.delay), 4)}
+                "command_delay_s": round(float(self.delay), 4), "delay_at_search_edge": bool(self.at_edge)}
 
 
 def fit_gains(traj: Trajectory, max_samples: int | None = None) -> GainFit | None:
@@ -109,7 +113,8 @@ def fit_gains(traj: Trajectory, max_samples: int | None = None) -> GainFit | Non
     commands may act on the servo after their stamps (a Go1 applies a LowCmd at
     its next 2 ms tick): the fit is made with ``q*`` delayed by each whole grid
     step up to :data:`MAX_DELAY` and the delay whose mean residual over the
-    well-posed joints is least is kept (:attr:`GainFit.delay`). *Measured*: the
+    well-posed joints is least is kept (:attr:`GainFit.delay`), unless it is the
+    longest searched (:attr:`GainFit.at_edge`: no joint is then trusted). *Measured*: the
     shared logs read 0; ``amhe run``'s recordings of the emulated Go1 2 ms,
     where Kp read 95 on the thighs of a servo of 100 without the delay and
     100 ± 1 with it, the effort residual halved.
@@ -130,7 +135,13 @@ def fit_gains(traj: Trajectory, max_samples: int | None = None) -> GainFit | Non
     for k in range(int(round(MAX_DELAY / traj.dt)) + 1):
         fit = _fit_delayed(traj, k, every, plateaus=False)
         scores.append(float(np.mean(fit.residual_rms[fit.ok])) if fit.ok.any() else np.inf)
-    return _fit_delayed(traj, int(np.argmin(scores)), 1 if max_samples is None else max(1, len(traj) // max_samples))
+    best = int(np.argmin(scores))
+    fit = _fit_delayed(traj, best, 1 if max_samples is None else max(1, len(traj) // max_samples))
+    if best and best == len(scores) - 1:
+        # at the end of the search: not a delay found. Taken, a grid between the joint samples once read a 20 ms
+        # delay with Kp 25–60 and negative Kd on a servo that applied its logged 100 / 4 (io/resample.py)
+        fit = replace(fit, ok=np.zeros_like(fit.ok), limit=np.full_like(fit.kp, np.nan), delay=0.0, at_edge=True)
+    return fit
 
 
 def delayed(a: np.ndarray, k: int, fill=None) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from amhe_cli.estimation.belief import Belief
-from amhe_cli.estimation.gains import applied_gains, applied_limit, delayed, fit_gains
+from amhe_cli.estimation.gains import MAX_DELAY, applied_gains, applied_limit, delayed, fit_gains
 from amhe_cli.estimation.payload import MIN_CLIPS as PAYLOAD_MIN_CLIPS, fit_payload
 from amhe_cli.estimation.timing import APPLY_ABOVE, mocap_offset
 from amhe_cli.errors import AmheError
@@ -150,6 +150,10 @@ def _servo_from_efforts(traj: Trajectory, config: SceneConfig) -> SceneConfig:
     fit = fit_gains(traj)
     if fit is None:
         return config
+    if fit.at_edge:
+        warnings.warn(f"the joint efforts fit the servo law best with the commands acting {MAX_DELAY * 1e3:.0f} ms "
+                      "after their stamps, the longest searched: no delay or gains read from them; the commands "
+                      "are taken as stamped and the logged gains kept", stacklevel=3)
     steps = int(round(fit.delay / traj.dt))
     if steps:  # the rollouts apply each command when it acted
         traj.ctrl = delayed(traj.ctrl, steps)
