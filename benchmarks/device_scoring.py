@@ -40,13 +40,7 @@ import numpy as np
 def same_launch(gpu, cost, P):
     """``cost.evaluate(P)`` scored on the host from the states of ``gpu``'s last launch (the same rollouts)."""
     c = cost.clips
-    qpos, qvel = gpu.last_states(len(P), c.horizon, c.control.shape[1])
-    rollout, cost.rollout = cost.rollout, lambda Q: (qpos, qvel)
-    flag, cost.score_on_device = cost.score_on_device, False
-    try:
-        return cost.evaluate(P)
-    finally:
-        cost.rollout, cost.score_on_device = rollout, flag
+    return cost.evaluate(P, states=gpu.last_states(len(P), c.horizon, c.control.shape[1]))
 
 
 def main() -> None:

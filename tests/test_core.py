@@ -461,17 +461,26 @@ def test_float32_states_a_gpu_returns_are_scored_in_float32_to_the_float64_costs
     assert e64.dtype == np.float64 and e32.dtype == np.float32
     np.testing.assert_allclose(e32, e64.astype(np.float32), atol=1e-5)
     J64 = cost.evaluate(P).per_clip
-    real = cost.rollout
-    try:
-        cost.rollout = lambda Q: tuple(x.astype(np.float32) for x in real(Q))
-        J32 = cost.evaluate(P).per_clip
-    finally:
-        cost.rollout = real
+    J32 = cost.evaluate(P, states=(qpos.astype(np.float32), qvel.astype(np.float32))).per_clip
     assert J32.dtype == np.float64 and np.all(np.abs(J32 - J64) <= 1e-4 * np.abs(J64) + 1e-9)
     a, b = (quat_normalize(rng.normal(size=(5, 4))).astype(np.float32) for _ in range(2))
     r32 = quat_relative_rotvec(a, b, single=True)
     assert r32.dtype == np.float32 and quat_relative_rotvec(a, b).dtype == np.float64  # only where asked
     np.testing.assert_allclose(r32, quat_relative_rotvec(a.astype(float), b.astype(float)), atol=1e-5)
+
+
+def test_states_already_rolled_out_are_scored_without_a_rollout(cost):
+    """``evaluate(P, states=...)`` scores the rollouts given (a GPU launch's own, ``WarpRollout.last_states``) as it
+    scores its own, and rolls nothing out."""
+    P = np.array([[5.0, 0.45], [4.2, 0.5], [3.0, 0.7]])
+    states = cost.rollout(P)
+    before = cost.rollout_steps
+    given = cost.evaluate(P, states=states)
+    assert cost.rollout_steps == before
+    np.testing.assert_array_equal(given.per_clip, cost.evaluate(P).per_clip)
+    moved = (states[0].copy(), states[1])
+    moved[0][0, :, 1:, 0] += 0.1  # the first candidate's trunk 10 cm off after its first step
+    assert cost.evaluate(P, states=moved).per_clip[0].sum() > given.per_clip[0].sum()
 
 
 def test_rollout_step_counter(cost, clips):

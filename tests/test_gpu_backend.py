@@ -320,9 +320,7 @@ def test_device_scores_are_the_host_scores_of_the_same_rollouts(scene, clips, tm
     with rw.WarpRollout(scene.model) as w, RolloutCost(scene, space, odd, prior_weight=0.0, pool=w) as cost:
         dev_ = cost.evaluate(P)
         qpos, qvel = w.last_states(len(P), odd.horizon, hmax)
-        cost.score_on_device = False
-        cost.rollout = lambda Q: (qpos, qvel)
-        host = cost.evaluate(P)
+        host = cost.evaluate(P, states=(qpos, qvel))
     assert qpos.dtype == np.float32
     assert np.array_equal(dev_.diverged, host.diverged) and host.diverged[:, [3, 5]].all() and host.diverged.sum() == 10
     ok = ~host.diverged

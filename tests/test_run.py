@@ -359,7 +359,6 @@ def test_a_robot_too_near_the_box_to_turn_steps_clear_of_it_first():
     assert not walk.get("clearing") and walk["speed"] > 0
 
 
-
 def test_a_step_clear_of_the_box_goes_on_past_the_threshold_before_the_robot_turns():
     """An emulated T3 run (stop 71, seed 7) flipped between stepping clear and turning 32 times in 23 s as the
     trot's sway carried the measured clearance across TURN_CLEARANCE (0.297–0.303 m at the flips). An approach's

@@ -279,7 +279,6 @@ class SplitTracker:
         if not every > 0:
             raise AmheError(f"change attribution needs a positive update period, got {every} s")
         self.every = float(every)
-        self.final_at = SPAN - 0.5 * self.every  # data [s] after a change from which its final decision is due
         m, mu = float(mean0[self.im]), float(mean0[self.iu])
         if not (m > 0 and mu > 0):
             raise AmheError(f"change attribution needs a positive prior mass and friction, got {m} kg and {mu}")
@@ -403,6 +402,11 @@ class SplitTracker:
         if located is not None:
             self.relocate(min(float(located), float(t)))
         return True
+
+    @property
+    def final_at(self) -> float:
+        """Seconds of data after a change from which its final decision is due (:meth:`due`)."""
+        return SPAN - 0.5 * self.every
 
     def due(self) -> tuple[float, str] | None:
         """``(since, reason)`` of the line decision due now (:class:`Decision`), else None.

@@ -296,17 +296,20 @@ class RolloutCost:
         self.rollout_steps += steps
         return qpos, qvel
 
-    def residuals(self, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def residuals(self, Q: np.ndarray, states: tuple[np.ndarray, np.ndarray] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
         """Whitened state errors ``sqrt(W_x) (x(p) - x^r)`` of feasible candidates.
 
         Args:
             Q: (B, d) feasible candidates (see :meth:`ParameterSpace.project`).
+            states: their rollouts' (qpos, qvel) as :meth:`rollout` returns them, where already made (None: rolled
+                out here).
         Returns:
             (B, N_c, H_max, 2 nv) residuals (zero where unobserved or past a
             clip's horizon) and (B, N_c) bool, True where the rollout diverged
             (non-finite, or a coordinate beyond 1 km).
         """
-        qpos, qvel = self.rollout(Q)
+        qpos, qvel = self.rollout(Q) if states is None else states
         c = self.clips
         res = state_error(self.scene, c.qpos[None], c.qvel[None], qpos, qvel)
         res *= (self._sqrt_wmask32 if res.dtype == np.float32 else self._sqrt_wmask)[None]
@@ -316,12 +319,16 @@ class RolloutCost:
             res[diverged] = 0.0
         return res, diverged
 
-    def evaluate(self, P: np.ndarray) -> CostBreakdown:
+    def evaluate(self, P: np.ndarray, states: tuple[np.ndarray, np.ndarray] | None = None) -> CostBreakdown:
         """Evaluate ``J`` on a batch.
 
         Args:
             P: (B, d) candidate parameter vectors (any values: infeasible ones
                 are projected and charged :data:`PENALTY` per squared prior-σ).
+            states: the (qpos, qvel) of these candidates' rollouts over the clips, where already made (as
+                :meth:`rollout` returns them, e.g. a GPU launch's own, ``WarpRollout.last_states``): scored on
+                the host, nothing rolled out. None: rolled out now, and scored where :attr:`score_on_device`
+                says.
         Returns:
             :class:`CostBreakdown` with (B,) totals and (B, N_c) per-clip terms.
         """
@@ -329,9 +336,9 @@ class RolloutCost:
         if P.shape[1] != self.space.dim:
             raise ValueError(f"candidates have {P.shape[1]} columns, expected {self.space.dim} ({self.space.labels})")
         Q, moved = self.space.project(P)
-        score = getattr(self.pool, "score_candidates", None) if self.score_on_device else None
+        score = getattr(self.pool, "score_candidates", None) if self.score_on_device and states is None else None
         if score is None:
-            res, diverged = self.residuals(Q)
+            res, diverged = self.residuals(Q, states)
             sums = np.einsum("bnhk,bnhk->bn", res, res).astype(float)
         else:
             c = self.clips
