@@ -18,8 +18,8 @@ from amhe_cli.control.maneuver import lunge_schedule
 from amhe_cli.control.robot_side import (READ_JOINTS, READ_STD, RobotSide, check_run, follow, read_robot,
                                          write_robot)
 from amhe_cli.errors import AmheError
-from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, box_travel, robot_box_clear,
-                                      sample_rest_clips)
+from amhe_cli.estimation.clips import (CLEAR_GAP, REST_FLOOR, ROBOT_REACH, TRUNK_PUSH, box_travel,
+                                      leg_only_touch, robot_box_clear, sample_rest_clips)
 from amhe_cli.estimation.gains import applied_gains, applied_limit, fit_gains
 from amhe_cli.estimation.payload import fit_payload
 from amhe_cli.estimation.identify import IdentifySettings, identify
@@ -32,7 +32,7 @@ from amhe_cli.io.sensors import stream_report
 from amhe_cli.io.unpack import _Series
 from amhe_cli.io.writer import write_mcap
 from amhe_cli.model.params import DEFAULT_FREE, ParameterSpace
-from amhe_cli.model.scene import Scene, SceneConfig, set_pd_gains
+from amhe_cli.model.scene import FOOT_RADIUS, Scene, SceneConfig, set_pd_gains
 from amhe_cli.plants.sim import SimPlant
 
 BOX_XY = (0.28 + 0.19 + 0.01, 0.0)
@@ -433,6 +433,44 @@ def test_rest_clips_keep_the_box_still_and_out_of_the_robots_reach(heavy_robot_l
     assert clear[-1] and scene.robot_box_gap(qpos[-1:])[0] > 0.1
     drawn = sample_rest_clips(near, scene, 16, rng=np.random.default_rng(0))
     assert drawn is not None and (scene.robot_box_gap(qpos[drawn.start]) > CLEAR_GAP).all()
+
+
+def test_a_box_moved_by_a_leg_alone_gives_the_line_decisions_no_clip():
+    """The lunge log's head bumps push the box (its feet on the floor): no clip of them counts as a leg alone
+    on the box. The same robot with the box carried along its front-right foot, 5 mm inside it, and moving
+    0.1 m/s: every clip counts, and a change test or line decision over it draws none (None: the next update
+    tries again); the box 5 cm off the foot, as fast: clips are drawn. (Two emulated T4 runs read mass changes
+    that were not there from such spans: a front foot struck the box or stood against it.)"""
+    from amhe_cli.estimation.mhe import decision_clips
+    scene = Scene(SceneConfig())
+    lunge = _lunge_log()
+    qpos = scene.qpos_qvel(lunge)[0]
+    starts = np.arange(0, len(lunge) - 100, 25)
+    assert scene.robot_box_gap(qpos[::5], part="trunk").min() < 0.005  # the head does reach the box
+    assert not leg_only_touch(lunge, scene, starts, 100).any()
+
+    def beside(offset: float):
+        foot = scene.foot_centres(qpos)[:, 0]  # FR
+        pos = lunge.box_pos.copy()
+        pos[:, 0] = foot[:, 0]
+        pos[:, 1] = foot[:, 1] - FOOT_RADIUS + offset - 0.19  # the box's left face `offset` past the foot's edge
+        vel = np.zeros_like(lunge.box_linvel)
+        vel[:, 0] = 0.1
+        return replace(lunge, box_pos=pos, box_quat=np.tile([1.0, 0, 0, 0], (len(lunge), 1)), box_linvel=vel,
+                       box_angvel=np.zeros_like(lunge.box_angvel))
+
+    kicked, clear = beside(0.005), beside(-0.05)
+    q = scene.qpos_qvel(kicked)[0][::50]
+    assert scene.robot_box_gap(q, part="legs").max() < 0 and scene.robot_box_gap(q, part="trunk").min() > TRUNK_PUSH
+    assert leg_only_touch(kicked, scene, starts, 100).all()
+    assert not leg_only_touch(clear, scene, starts, 100).any()
+    stop = len(lunge) - 1
+    rng = np.random.default_rng(0)
+    assert decision_clips(kicked, scene, stop, 0.0, 16, rng, 0.02) is None
+    drawn = decision_clips(clear, scene, stop, 0.0, 16, rng, 0.02)
+    assert drawn is not None and len(drawn) == 16
+    with pytest.raises(ValueError, match="part"):
+        scene.robot_box_gap(q, part="arm")
 
 
 def test_a_robot_near_the_box_but_not_touching_it_tells_its_payload():

@@ -144,7 +144,7 @@ def excitation(traj: Trajectory, window: int) -> np.ndarray:
 
 def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
                  rng: np.random.Generator | None = None, t_range=None, min_speed: float = 0.02,
-                 min_travel: float = 0.0, candidates: int = 1) -> Clips:
+                 min_travel: float = 0.0, candidates: int = 1, allowed=None, rest_ok: bool = True) -> Clips:
     """Draw ``n_clips`` clips for SPI-style identification (paper §III-B).
 
     Horizons are uniform in ``horizon_range`` [s] (rounded to model steps);
@@ -159,18 +159,28 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     ``min_travel`` [m] (:func:`rest_travel`: what pose noise alone moves a
     resting box) count as at rest. ``candidates`` > 1 draws that many times
     ``n_clips`` (as many as there are) for :func:`choose_informative` to choose from.
+    ``allowed``, a callable ``(starts, hi) -> (N,) bool`` (e.g. :func:`robot_box_clear` with ``legs``), rules
+    starts out before any is drawn, at rest or moving.
 
     Raises:
-        AmheError: no observed stretch is long enough for one clip.
+        AmheError: no observed stretch is long enough for one clip; no start is ``allowed``; or, with
+            ``rest_ok`` False, the box rests at every start (no clip would tell anything).
     """
     rng = rng or np.random.default_rng(0)
     lo, hi = _horizon_steps(traj, horizon_range)
     usable = _usable_starts(traj, hi, t_range)
+    if allowed is not None:
+        idx = np.flatnonzero(usable)
+        usable[idx[~allowed(idx, hi)]] = False
+        if not usable.any():
+            raise AmheError("no clip start of the log is allowed")
     score = excitation(traj, hi)
     active = usable & (score > min_speed)
     if min_travel > 0:
         idx = np.flatnonzero(active)
         active[idx[box_travel(traj, idx, np.full(idx.size, hi)) <= min_travel]] = False
+    if not rest_ok and not active.any():
+        raise AmheError("the box rests at every allowed clip start")
     if active.sum() < n_clips:
         where = "in the log" if t_range is None else f"in {t_range[0]:g}-{t_range[1]:g} s of the log"
         warnings.warn(f"the box moves faster than {min_speed:g} m/s {where} at only {int(active.sum())} clip "
@@ -224,6 +234,31 @@ ROBOT_REACH = 0.4
 CLEAR_GAP = 0.05
 #: The gap is computed on every this many samples (:func:`robot_box_clear`).
 GAP_STRIDE = 5
+#: A leg nearer the box than this [m] at a :data:`GAP_STRIDE`-th sample touches it (:func:`leg_only_touch`):
+#: a foot swinging at 0.5 m/s covers it between two checked samples.
+LEG_GAP = 0.005
+#: The trunk nearer the box than this [m] pushes it: a pushing head plate sits within 3 mm of the box as
+#: recorded (2.7 mm inside it at most on emulated T4 runs through 1 mm motion capture), and noise adds a few.
+TRUNK_PUSH = 0.01
+
+
+def _checked_gaps(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int, every: int,
+                  part: str) -> np.ndarray:
+    """(N, K) robot–box gaps [m] of ``part`` (:meth:`~amhe_cli.model.scene.Scene.robot_box_gap`) at every
+    ``every``-th sample of the clips from ``starts`` over ``hi`` samples (and their last), each taken on the
+    nearest :data:`GAP_STRIDE`-th sample of the log (a foot moves under a centimetre in 4 ms: a fifth of the
+    ``mj_geomDistance`` calls, and most of a check's time); ``inf`` where the trunk origin is farther from the
+    box's centre than :data:`ROBOT_REACH` plus half the box's horizontal diagonal."""
+    reach = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
+    offsets = np.unique(np.r_[np.arange(0, hi + 1, every), hi])
+    index = np.minimum(np.round((starts[:, None] + offsets[None]) / GAP_STRIDE).astype(int) * GAP_STRIDE,
+                       (len(traj) - 1) // GAP_STRIDE * GAP_STRIDE)
+    dist = np.full(len(traj), np.inf)
+    need = np.unique(index)
+    near = need[np.linalg.norm(traj.base_pos[need, :2] - traj.box_pos[need, :2], axis=1) <= reach]
+    if near.size:
+        dist[near] = scene.robot_box_gap(scene.qpos_qvel(traj, near)[0], part=part)
+    return dist[index]
 
 
 def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
@@ -239,18 +274,29 @@ def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int)
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:
         return np.zeros(0, dtype=bool)
-    reach = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
-    offsets = np.unique(np.r_[np.arange(0, hi + 1, 10), hi])
-    # the geometry on every GAP_STRIDE-th sample, each checked sample taking its nearest (a foot moves
-    # under a centimetre in 4 ms): a fifth of the mj_geomDistance calls, and most of a check's time
-    index = np.minimum(np.round((starts[:, None] + offsets[None]) / GAP_STRIDE).astype(int) * GAP_STRIDE,
-                       (len(traj) - 1) // GAP_STRIDE * GAP_STRIDE)
-    gap = np.full(len(traj), np.inf)
-    need = np.unique(index)
-    near = need[np.linalg.norm(traj.base_pos[need, :2] - traj.box_pos[need, :2], axis=1) <= reach]
-    if near.size:
-        gap[near] = scene.robot_box_gap(scene.qpos_qvel(traj)[0][near])
-    return (gap[index] > CLEAR_GAP).all(axis=1)
+    return (_checked_gaps(traj, scene, starts, hi, 10, "robot") > CLEAR_GAP).all(axis=1)
+
+
+def leg_only_touch(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
+    """(N,) bool: in the clip from each of ``starts`` over ``hi`` samples a leg touches the box (nearer than
+    :data:`LEG_GAP`) at a checked sample (every :data:`GAP_STRIDE`-th) where the trunk does not push it (no
+    nearer than :data:`TRUNK_PUSH`): a kick, or a foot standing against the box.
+
+    Such a contact is the model's least trustworthy (its soft foot spheres sit up to 12 mm inside the box on a
+    clean lock-step recording, 20 mm on an emulated run's, where a pushing trunk sits within 3 mm) and, a kick
+    being over before friction matters, it reads as inertia alone. A foot touching the box beside a pushing
+    trunk (a front foot striking the box's face each stride of a push) does not count: the push carries the
+    box, and those clips held the T4 step's decisive reading on an emulated run.
+    """
+    starts = np.asarray(starts, dtype=int)
+    if starts.size == 0:
+        return np.zeros(0, dtype=bool)
+    legs = _checked_gaps(traj, scene, starts, hi, GAP_STRIDE, "legs")
+    touch = legs <= LEG_GAP
+    if not touch.any():
+        return touch.any(axis=1)
+    trunk = _checked_gaps(traj, scene, starts, hi, GAP_STRIDE, "trunk")
+    return (touch & (trunk > TRUNK_PUSH)).any(axis=1)
 
 
 def _horizon_steps(traj: Trajectory, horizon_range) -> tuple[int, int]:
