@@ -144,7 +144,7 @@ def excitation(traj: Trajectory, window: int) -> np.ndarray:
 
 def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
                  rng: np.random.Generator | None = None, t_range=None, min_speed: float = 0.02,
-                 min_travel: float = 0.0, candidates: int = 1, allowed=None, rest_ok: bool = True) -> Clips:
+                 min_travel: float = 0.0, candidates: int = 1, allowed=None, min_moving: int = 0) -> Clips:
     """Draw ``n_clips`` clips for SPI-style identification (paper §III-B).
 
     Horizons are uniform in ``horizon_range`` [s] (rounded to model steps);
@@ -159,12 +159,13 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     ``min_travel`` [m] (:func:`rest_travel`: what pose noise alone moves a
     resting box) count as at rest. ``candidates`` > 1 draws that many times
     ``n_clips`` (as many as there are) for :func:`choose_informative` to choose from.
-    ``allowed``, a callable ``(starts, hi) -> (N,) bool`` (e.g. :func:`robot_box_clear` with ``legs``), rules
-    starts out before any is drawn, at rest or moving.
+    ``allowed``, a callable ``(starts, hi) -> (N,) bool`` (e.g. not :func:`leg_only_touch`), rules
+    starts out before any is drawn, at rest or moving. ``min_moving`` > 0 draws from moving starts alone, as
+    many as there are up to ``n_clips``, and asks for at least that many.
 
     Raises:
-        AmheError: no observed stretch is long enough for one clip; no start is ``allowed``; or, with
-            ``rest_ok`` False, the box rests at every start (no clip would tell anything).
+        AmheError: no observed stretch is long enough for one clip; no start is ``allowed``; or fewer than
+            ``min_moving`` starts move.
     """
     rng = rng or np.random.default_rng(0)
     lo, hi = _horizon_steps(traj, horizon_range)
@@ -179,15 +180,16 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     if min_travel > 0:
         idx = np.flatnonzero(active)
         active[idx[box_travel(traj, idx, np.full(idx.size, hi)) <= min_travel]] = False
-    if not rest_ok and not active.any():
-        raise AmheError("the box rests at every allowed clip start")
-    if active.sum() < n_clips:
+    if min_moving > 0:
+        if active.sum() < min_moving:
+            raise AmheError(f"the box moves at {int(active.sum())} clip starts, fewer than {min_moving}")
+    elif active.sum() < n_clips:
         where = "in the log" if t_range is None else f"in {t_range[0]:g}-{t_range[1]:g} s of the log"
         warnings.warn(f"the box moves faster than {min_speed:g} m/s {where} at only {int(active.sum())} clip "
                       f"starts, fewer than the {n_clips} clips asked for: clips of a box at rest tell nothing of "
                       "its mass or friction, so the estimate stays near the prior (give a log, or --t-range, "
                       "where the robot pushes the box)", stacklevel=2)
-    pool = np.flatnonzero(active if active.sum() >= n_clips else usable)
+    pool = np.flatnonzero(active if min_moving > 0 or active.sum() >= n_clips else usable)
     weight = score[pool] + 1e-3
     k = min(n_clips * max(int(candidates), 1), pool.size)
     starts = np.sort(rng.choice(pool, size=k, replace=False, p=weight / weight.sum()))

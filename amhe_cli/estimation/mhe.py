@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK,
+from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
                                              NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
 from amhe_cli.estimation.clips import join_clips, leg_only_touch, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
@@ -229,10 +229,10 @@ def rested(idle: float, compute_time: float, duty: float) -> bool:
 def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
                    min_speed: float):
     """``n`` clips of a line decision or change test (:mod:`~amhe_cli.estimation.attribution`), drawn with ``rng``
-    as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, starting where the box moves
-    faster than ``min_speed`` [m/s], among clips in which no leg touches the box but beside a pushing trunk
-    (:func:`~amhe_cli.estimation.clips.leg_only_touch`); None where not a clip's worth is in yet, or the box
-    moved only where a leg alone touched it (the next update tries again).
+    as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, starting only where the box
+    moves faster than ``min_speed`` [m/s], among clips in which no leg touches the box but beside a pushing
+    trunk (:func:`~amhe_cli.estimation.clips.leg_only_touch`); None where such starts span less than
+    :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds (the next update tries again).
 
     Why no leg: two emulated T4 runs (decisions on an H200) read late mass changes of −35 % and +34 % that were
     not there, each from a span whose box moved only where a front foot struck it or stood against it, 12–20 mm
@@ -242,9 +242,9 @@ def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: i
     _, horizon, _ = clip_plan(traj)
     try:
         with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
+            warnings.simplefilter("ignore")
             return sample_clips(traj, scene, n, horizon, rng, (since, float(traj.t[stop - 1])), min_speed,
-                                rest_travel(traj), rest_ok=False,
+                                rest_travel(traj), min_moving=int(round(MOVING_MIN / traj.dt)),
                                 allowed=lambda starts, hi: ~leg_only_touch(traj, scene, starts, hi))
     except AmheError:
         return None
