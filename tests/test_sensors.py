@@ -440,8 +440,8 @@ def test_a_box_moved_by_a_leg_alone_gives_the_line_decisions_no_clip():
     on the box. The same robot with the box carried along its front-right foot, 5 mm inside it, and moving
     0.1 m/s: every clip counts, and a change test or line decision over it draws none (None: the next update
     tries again); the box 5 cm off the foot, as fast: clips are drawn. (Two emulated T4 runs read mass changes
-    that were not there from such spans: a front foot struck the box or stood against it.) Nor are clips of
-    the box at rest drawn to make up the number where too little moved."""
+    that were not there from such spans: a front foot struck the box or stood against it.) A span with enough
+    of a push keeps the leg's clips in the draw; one with less than MOVING_MIN of it waits."""
     from amhe_cli.estimation.attribution import MOVING_MIN
     from amhe_cli.estimation.identify import clip_plan
     from amhe_cli.estimation.mhe import decision_clips
@@ -472,19 +472,21 @@ def test_a_box_moved_by_a_leg_alone_gives_the_line_decisions_no_clip():
     assert decision_clips(kicked, scene, stop, 0.0, 16, rng, 0.02) is None
     drawn = decision_clips(clear, scene, stop, 0.0, 16, rng, 0.02)
     assert drawn is not None and len(drawn) == 16
-    # the box off the foot moving for a stretch alone, more clips asked for than start where it moves: only
-    # those are drawn (clips of a box at rest read its pose noise), and a span of fewer than MOVING_MIN's
-    # worth of moving starts gives none
-    vel = np.zeros_like(clear.box_linvel)
-    vel[1000:1100, 0] = 0.1
-    drawn = decision_clips(replace(clear, box_linvel=vel), scene, stop, 0.0, 400, rng, 0.02)
+    # the foot on the box for the first half of the span, off it for the second: the leg's clips stay in the
+    # draw beside the push's
+    half = len(lunge) // 2
+    mixed = replace(clear, box_pos=np.concatenate([kicked.box_pos[:half], clear.box_pos[half:]]))
+    drawn = decision_clips(mixed, scene, stop, 0.0, 64, rng, 0.02)
+    assert drawn is not None and (drawn.start < half - 200).sum() > 8 and (drawn.start > half).sum() > 8
+    # a span where the foot is on the box until the box comes off it: with less than MOVING_MIN's worth of
+    # clip starts after, it waits; with more, it draws
     hi = int(round(clip_plan(clear)[1][1] / lunge.dt))  # the longest clip
-    assert 100 <= len(drawn) < 400 and np.all((drawn.start >= 1000 - 2 * hi) & (drawn.start < 1100))  # excitation: a change within hi, seen over the next hi
     need = int(round(MOVING_MIN / lunge.dt))
-    late = float(clear.t[stop - 1 - hi - need // 2])  # need // 2 starts whose longest clips end by stop
-    assert decision_clips(clear, scene, stop, late, 16, rng, 0.02) is None
-    early = float(clear.t[stop - 1 - hi - 2 * need])
-    assert decision_clips(clear, scene, stop, early, 16, rng, 0.02) is not None
+    for clean, tells in ((need // 2, False), (2 * need, True)):
+        off = stop - 1 - hi - clean  # clips from here on, `clean` of them, end by stop with the box off the foot
+        later = replace(clear, box_pos=np.concatenate([kicked.box_pos[:off], clear.box_pos[off:]]))
+        drawn = decision_clips(later, scene, stop, float(lunge.t[off - need]), 16, rng, 0.02)
+        assert (drawn is not None) == tells
     with pytest.raises(ValueError, match="part"):
         scene.robot_box_gap(q, part="arm")
 

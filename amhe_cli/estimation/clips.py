@@ -142,9 +142,29 @@ def excitation(traj: Trajectory, window: int) -> np.ndarray:
     return win.max(axis=1)
 
 
+def moving_starts(traj: Trajectory, hi: int, t_range=None, min_speed: float = 0.02,
+                  min_travel: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clip starts over ``hi`` samples, as :func:`sample_clips` takes them.
+
+    Returns:
+        (usable, active, score): (T,) bool starts whose whole clip is observed (and inside ``t_range``
+        [s]); (T,) bool those of them whose :func:`excitation` is above ``min_speed`` [m/s] and over whose
+        ``hi`` samples the box went further than ``min_travel`` [m]; (T,) the excitation.
+    Raises:
+        AmheError: no observed stretch is long enough for one clip.
+    """
+    usable = _usable_starts(traj, hi, t_range)
+    score = excitation(traj, hi)
+    active = usable & (score > min_speed)
+    if min_travel > 0:
+        idx = np.flatnonzero(active)
+        active[idx[box_travel(traj, idx, np.full(idx.size, hi)) <= min_travel]] = False
+    return usable, active, score
+
+
 def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
                  rng: np.random.Generator | None = None, t_range=None, min_speed: float = 0.02,
-                 min_travel: float = 0.0, candidates: int = 1, allowed=None, min_moving: int = 0) -> Clips:
+                 min_travel: float = 0.0, candidates: int = 1) -> Clips:
     """Draw ``n_clips`` clips for SPI-style identification (paper §III-B).
 
     Horizons are uniform in ``horizon_range`` [s] (rounded to model steps);
@@ -157,39 +177,22 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     nothing of its mass or friction, so the estimate stays near the prior.
     Starts over whose longest horizon the box goes no further than
     ``min_travel`` [m] (:func:`rest_travel`: what pose noise alone moves a
-    resting box) count as at rest. ``candidates`` > 1 draws that many times
+    resting box) count as at rest (:func:`moving_starts`). ``candidates`` > 1 draws that many times
     ``n_clips`` (as many as there are) for :func:`choose_informative` to choose from.
-    ``allowed``, a callable ``(starts, hi) -> (N,) bool`` (e.g. not :func:`leg_only_touch`), rules
-    starts out before any is drawn, at rest or moving. ``min_moving`` > 0 draws from moving starts alone, as
-    many as there are up to ``n_clips``, and asks for at least that many.
 
     Raises:
-        AmheError: no observed stretch is long enough for one clip; no start is ``allowed``; or fewer than
-            ``min_moving`` starts move.
+        AmheError: no observed stretch is long enough for one clip.
     """
     rng = rng or np.random.default_rng(0)
     lo, hi = _horizon_steps(traj, horizon_range)
-    usable = _usable_starts(traj, hi, t_range)
-    if allowed is not None:
-        idx = np.flatnonzero(usable)
-        usable[idx[~allowed(idx, hi)]] = False
-        if not usable.any():
-            raise AmheError("no clip start of the log is allowed")
-    score = excitation(traj, hi)
-    active = usable & (score > min_speed)
-    if min_travel > 0:
-        idx = np.flatnonzero(active)
-        active[idx[box_travel(traj, idx, np.full(idx.size, hi)) <= min_travel]] = False
-    if min_moving > 0:
-        if active.sum() < min_moving:
-            raise AmheError(f"the box moves at {int(active.sum())} clip starts, fewer than {min_moving}")
-    elif active.sum() < n_clips:
+    usable, active, score = moving_starts(traj, hi, t_range, min_speed, min_travel)
+    if active.sum() < n_clips:
         where = "in the log" if t_range is None else f"in {t_range[0]:g}-{t_range[1]:g} s of the log"
         warnings.warn(f"the box moves faster than {min_speed:g} m/s {where} at only {int(active.sum())} clip "
                       f"starts, fewer than the {n_clips} clips asked for: clips of a box at rest tell nothing of "
                       "its mass or friction, so the estimate stays near the prior (give a log, or --t-range, "
                       "where the robot pushes the box)", stacklevel=2)
-    pool = np.flatnonzero(active if min_moving > 0 or active.sum() >= n_clips else usable)
+    pool = np.flatnonzero(active if active.sum() >= n_clips else usable)
     weight = score[pool] + 1e-3
     k = min(n_clips * max(int(candidates), 1), pool.size)
     starts = np.sort(rng.choice(pool, size=k, replace=False, p=weight / weight.sum()))
