@@ -78,7 +78,10 @@ parameter that moved first attributed on 2.0 s (T3) and 1.6 s (T4) of data after
 against 1 of 12 and 0 of 11 ("A change test on each window's data"). With a change's final decision at the window
 nearest :data:`SPAN` (:meth:`SplitTracker.due`), 32 emulated runs on an H200: both bounds from 3 s in 16 of 16 (T3) and
 14 of 16 (T4; its two misses read a change of their own later), against 6 of 8 for the code before on T3 in the same
-session ("The final decision at the span's window").
+session ("The final decision at the span's window"). Those two late changes came from spans whose box moved only where
+a leg alone touched it (:func:`~amhe_cli.estimation.clips.leg_only_touch`): a test or decision over such a span waits
+(:data:`MOVING_MIN`); leaving a leg's clips out of every decision instead cost T3's switch its clips (11 of 16 from
+3 s on an H200; "A leg on the box is not a push").
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
@@ -123,7 +126,8 @@ CLIPS = 32
 #: A leg's contact with the box is the model's least trustworthy (its soft foot spheres sit up to 12 mm inside the box on
 #: a clean lock-step recording, 20 mm on an emulated run's) and, a kick being over before friction matters, it reads as
 #: inertia: two emulated T4 runs read mass changes of −35 % and +34 % that were not there from spans whose box moved
-#: only where a front foot struck it or stood against it (0–18 such starts). A push holds 97–356 a second.
+#: only where a front foot struck it or stood against it (not one moving clip start clean of a leg in either; 7 and 18
+#: of 121 and 367 in two T3 runs' late misreads of the friction). A push holds 97–356 clean ones a second.
 MOVING_MIN = 0.1
 #: Seconds of informative data between line decisions where no change is detected.
 PERIOD = SPAN
