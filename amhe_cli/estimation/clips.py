@@ -291,7 +291,9 @@ def leg_only_touch(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) 
     clean lock-step recording, 20 mm on an emulated run's, where a pushing trunk sits within 3 mm) and, a kick
     being over before friction matters, it reads as inertia alone. A foot touching the box beside a pushing
     trunk (a front foot striking the box's face each stride of a push) does not count: the push carries the
-    box, and those clips held the T4 step's decisive reading on an emulated run.
+    box; as a leg's alone, with the trunk a centimetre off the box, count up to two thirds of a window's clips at
+    T3's switch on emulated runs, which is why they gate a decision rather than leave it
+    (:func:`~amhe_cli.estimation.mhe.decision_clips`).
     """
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:

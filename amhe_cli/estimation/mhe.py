@@ -247,8 +247,15 @@ def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: i
         hi = int(round(horizon[1] / traj.dt))
         _, active, _ = moving_starts(traj, hi, span, min_speed, rest_travel(traj))
         moving = np.flatnonzero(active)
-        legs = int(leg_only_touch(traj, scene, moving, hi).sum())
-        if legs and moving.size - legs < MOVING_MIN / traj.dt:
+        need = MOVING_MIN / traj.dt
+        clean, legs = 0, False
+        # newest starts first, a chunk at a time, until enough are clean: a push's span is read in one chunk
+        for chunk in np.array_split(moving[::-1], max(1, int(np.ceil(moving.size / (2 * need))))):
+            alone = leg_only_touch(traj, scene, chunk, hi)
+            clean, legs = clean + int((~alone).sum()), legs or bool(alone.any())
+            if clean >= need:
+                break
+        if legs and clean < need:
             return None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells

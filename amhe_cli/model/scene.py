@@ -241,8 +241,8 @@ class Scene:
 
     def robot_box_gap(self, qpos: np.ndarray, distmax: float = 0.5, part: str = "robot") -> np.ndarray:
         """(N,) smallest distance [m] between the robot's geoms that can touch the box and the box, for (N, nq)
-        states (negative: penetrating; ``distmax`` where farther); ``part`` ``"legs"`` or ``"trunk"``: only
-        those geoms (the trunk body's own, or all the others). ``mujoco.mj_geomDistance`` after
+        states (negative: penetrating; ``distmax`` where farther), over ``part``'s geoms: ``"robot"`` (all),
+        ``"trunk"`` (the trunk body's own) or ``"legs"`` (all the others). ``mujoco.mj_geomDistance`` after
         ``mj_kinematics``, over the robot's collision geoms whose contype/conaffinity meet the box's: about
         70 µs a state on one core.
 
