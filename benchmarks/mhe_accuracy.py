@@ -12,8 +12,9 @@ the friction is within 0.1 of the new value 3 s after the step ("@3s") and
 from then on ("from 3s"); the last column counts the runs that hold the issue's
 bounds from 3 s after each change (mass within 10 %, μ within 0.05, the
 unchanged parameter included), the median seconds after the change from which a run
-held them (each row's ``within_after_s``; no clock: the data's time, not the update's), and
-how many held the friction force m·μ (what a
+held them (each row's ``within_after_s``; no clock: the data's time, not the update's), how many
+held them from 3 s after the box first moved after the change (``seen_after_s``: a change while the box
+rests shows in no data until a push moves it again), and how many held the friction force m·μ (what a
 steady push shows, ``benchmarks/window_information.py``) within 10 %; on a
 constant-parameter log given with ``--sliding`` (e.g. noisy motion capture) the
 friction is within 0.05 of the truth from 3 s after the box first slides (truth
@@ -76,6 +77,22 @@ def within_after(t, mass, mu, mass_t, mu_t, change: float) -> float | None:
     return None if held is None else round(held, 3)
 
 
+def seen_after(traj, change: float) -> float | None:
+    """Seconds after ``change`` [s] by which the box has moved at ``MOVING_MIN`` seconds' worth of clip starts
+    (0.2 s clips, as the MHE's decisions count them: :func:`~amhe_cli.estimation.clips.moving_starts`, the log's
+    pose noise read; a blip of noise past it is a few starts): about 0.1 where the box moves through the change,
+    None where it never moves that much again."""
+    from amhe_cli.estimation.attribution import MOVING_MIN
+    from amhe_cli.estimation.clips import moving_starts, rest_travel
+    hi = int(round(0.2 / traj.dt))
+    if traj.t[-1] - change <= hi * traj.dt:
+        return None
+    _, active, _ = moving_starts(traj, hi, (change, float(traj.t[-1])), 0.02, rest_travel(traj))
+    idx = np.flatnonzero(active)
+    need = int(round(MOVING_MIN / traj.dt))
+    return None if idx.size < need else round(float(traj.t[idx[need - 1]] - change), 3)
+
+
 def run(job):
     log, kind, kw, seed, threads, prior, realtime = job
     from amhe_cli.estimation.cost import StateWeights
@@ -104,21 +121,24 @@ def run(job):
         e = (worst(np.abs(mass[pre] - 4)) / 4, worst(np.abs(mass[post] - 6)) / 6, worst(np.abs(mu - mut)),
              force_err(post) if post.any() else np.nan)
         switch = truth.change_times("box_mass")
-        late = within_after(t, mass, mu, mass_t, mut, float(switch[0]) if len(switch) else 10.0)
-        return kind, e, (e[0] <= 0.1 and e[1] <= 0.1 and e[2] <= 0.1), res.realtime_factor, late
+        change = float(switch[0]) if len(switch) else 10.0
+        late = within_after(t, mass, mu, mass_t, mut, change)
+        return (kind, e, (e[0] <= 0.1 and e[1] <= 0.1 and e[2] <= 0.1), res.realtime_factor, late,
+                seen_after(pr.traj, change))
     if kind == "sliding":
         after = t >= first_slide(log, pr.traj) + 3
         e = (float(np.abs(mu[after] - mut[after]).max()),)
-        return kind, e, e[0] <= 0.05, res.realtime_factor, None
+        return kind, e, e[0] <= 0.05, res.realtime_factor, None, None
     step_t = truth.change_times("box_friction")[0]
     new = truth.values["box_friction"][-1]
     after = t >= step_t + 3
     if not after.any():
-        return kind, (np.nan,) * 4, False, res.realtime_factor, None
+        return kind, (np.nan,) * 4, False, res.realtime_factor, None, None
     # estimate in use at +3 s; worst after; the (unchanged) mass's worst relative error after; m·μ's
     e = (abs(mu[np.argmax(after) - 1] - new), np.abs(mu[after] - new).max(),
          float(np.max(np.abs(mass[after] / mass_t[after] - 1))), force_err(after))
-    return kind, e, (e[0] <= 0.1, e[1] <= 0.1), res.realtime_factor, within_after(t, mass, mu, mass_t, mut, step_t)
+    return (kind, e, (e[0] <= 0.1, e[1] <= 0.1), res.realtime_factor, within_after(t, mass, mu, mass_t, mut, step_t),
+            seen_after(pr.traj, step_t))
 
 
 def main() -> None:
@@ -167,8 +187,8 @@ def main() -> None:
                 with open(a.out, "a") as f:
                     f.write(json.dumps({"config": keys[i], "log": jobs[i][0], "kind": o[0], "seed": jobs[i][3],
                                         "errors": [float(x) for x in o[1]], "rt": float(o[3]),
-                                        "within_after_s": o[4]}) + "\n")
-    for job, name, (kind, e, ok, _, _) in zip(jobs, keys, out):
+                                        "within_after_s": o[4], "seen_after_s": o[5]}) + "\n")
+    for job, name, (kind, e, ok, *_) in zip(jobs, keys, out):
         if not np.all(ok):
             print(f"missed: {name} {kind} {job[0]} seed {job[3]}: " + " ".join(f"{x:.3f}" for x in e))
     print(f"{'config':<12} {'mass-switch ok':>14} {'worst pre/post/mu':>22} {'step ok @3s':>11} {'from 3s':>7} "
@@ -192,6 +212,9 @@ def main() -> None:
             mid = np.median([x if x is not None else np.inf for x in late])
             line += (f" (in them from {f'{mid:.1f} s' if np.isfinite(mid) else 'never'} after it, median; "
                      f"never in {sum(x is None for x in late)})")
+            seen = [(r[4], r[5]) for r in ms + st]  # held from, and the box moving from, after the change
+            line += (", from 3 s after the box moved again: "
+                     f"{sum(h is not None and v is not None and h <= max(v, 0.0) + 3.0 for h, v in seen)}/{len(seen)}")
         force = [r[1][3] for r in ms + st]
         line += (f", m·mu 10 %: {sum(f <= 0.1 for f in force)}/{len(force)} "
                  f"(worst {100 * np.nanmax(force):.0f} %)")
