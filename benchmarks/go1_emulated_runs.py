@@ -84,6 +84,8 @@ UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
 DECISION_TIME = re.compile(r"MHE line decisions took a median ([0-9.]+) s")
 DECISION_BATCHES = re.compile(r"their backend: ([0-9]+) batches, steps ([0-9.]+) s, candidates' fields ([0-9.]+) s, "
                               r"read-back ([0-9.]+) s")
+#: the tests and decisions that waited for a leg alone on the box (MovingHorizonEstimator.legs_held)
+LEGS_HELD = re.compile(r"(\d+) test\(s\) or decision\(s\) held where the box moved only under a leg alone")
 #: the fall reflex's start of a recovery, with what set it off (reflex.FallReflex.update)
 RECOVERY = re.compile(r"t=([0-9.]+) s: fall prevention: ([^;]*); stop pushing")
 #: the run's read of its robot mid-run (closed_loop.run_task, robot_read): the servo share and the motors' limit share
@@ -309,6 +311,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     if m:  # and where their GPU backend spent it, summed over the run
         res["mhe_decision_batches"] = dict(zip(("batches", "steps_s", "fields_s", "readback_s"),
                                                (int(m.group(1)), *map(float, m.group(2, 3, 4)))))
+    if "mhe_decision_s" in res:  # and the spans that waited for a leg alone on the box
+        m = LEGS_HELD.search(log)
+        res["mhe_legs_held"] = int(m.group(1)) if m else 0
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)

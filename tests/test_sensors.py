@@ -444,7 +444,7 @@ def test_a_box_moved_by_a_leg_alone_gives_the_line_decisions_no_clip():
     of a push keeps the leg's clips in the draw; one with less than MOVING_MIN of it waits."""
     from amhe_cli.estimation.attribution import MOVING_MIN
     from amhe_cli.estimation.identify import clip_plan
-    from amhe_cli.estimation.mhe import decision_clips
+    from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator, decision_clips, held_by_legs
     scene = Scene(SceneConfig())
     lunge = _lunge_log()
     qpos = scene.qpos_qvel(lunge)[0]
@@ -469,9 +469,17 @@ def test_a_box_moved_by_a_leg_alone_gives_the_line_decisions_no_clip():
     assert not leg_only_touch(clear, scene, starts, 100).any()
     stop = len(lunge) - 1
     rng = np.random.default_rng(0)
+    assert held_by_legs(kicked, scene, stop, 0.0, 0.02) and not held_by_legs(clear, scene, stop, 0.0, 0.02)
     assert decision_clips(kicked, scene, stop, 0.0, 16, rng, 0.02) is None
     drawn = decision_clips(clear, scene, stop, 0.0, 16, rng, 0.02)
     assert drawn is not None and len(drawn) == 16
+    # the run's estimator counts the waits and says so at the end of a run
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 5.0, "box_friction": 0.45})
+    with MovingHorizonEstimator(scene, space, MHESettings()) as mhe:
+        assert mhe._decision_clips(kicked, stop, 0.0, 16, rng) is None and mhe.legs_held == 1
+        assert mhe._decision_clips(clear, stop, 0.0, 16, rng) is not None and mhe.legs_held == 1
+        mhe.decision_times.append(0.4)
+        assert "1 test(s) or decision(s) held where the box moved only under a leg alone" in mhe.describe_decisions()
     # the foot on the box for the first half of the span, off it for the second: the leg's clips stay in the
     # draw beside the push's
     half = len(lunge) // 2

@@ -227,39 +227,56 @@ def rested(idle: float, compute_time: float, duty: float) -> bool:
     return idle >= compute_time * (1.0 / duty - 1.0)
 
 
+def held_by_legs(traj: Trajectory, scene: Scene, stop: int, since: float, min_speed: float) -> bool:
+    """Whether a change test or line decision over ``since`` [s] to sample ``stop`` waits: a leg alone touched the
+    box (:func:`~amhe_cli.estimation.clips.leg_only_touch`) in some of the clips from the span's moving starts
+    (over the clips' longest horizon the box faster than ``min_speed`` [m/s], beyond the log's pose noise), and
+    the others come to less than :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds' worth. False where
+    no start moves.
+
+    Where enough of the span is a push, it does not wait, a leg's clips and all: a front foot strikes the box
+    beside the pushing trunk at every stride of some pushes, and those clips carry the switch. *Measured* on an
+    H200 (emulated T3 and T4, docs/evaluation.md "A leg on the box is not a push"): two T4 runs read mass changes
+    of −35 % and +34 % that were not there from spans that wait here; with the clips of a leg alone left out of
+    every decision instead (up to two thirds of a window's at T3's switch), both bounds held from 3 s in 11 of 16
+    T3 runs (16 of 16 before), and drawn only where the box moved, in 4 of 8."""
+    _, horizon, _ = clip_plan(traj)
+    hi = int(round(horizon[1] / traj.dt))
+    try:
+        _, active, _ = moving_starts(traj, hi, (since, float(traj.t[stop - 1])), min_speed, rest_travel(traj))
+    except AmheError:
+        return False
+    moving = np.flatnonzero(active)
+    need = MOVING_MIN / traj.dt
+    clean, legs = 0, False
+    # newest starts first, a chunk at a time, until enough are clean: a push's span is read in one chunk
+    for chunk in np.array_split(moving[::-1], max(1, int(np.ceil(moving.size / (2 * need))))):
+        alone = leg_only_touch(traj, scene, chunk, hi)
+        clean, legs = clean + int((~alone).sum()), legs or bool(alone.any())
+        if clean >= need:
+            return False
+    return legs
+
+
 def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
                    min_speed: float):
     """``n`` clips of a line decision or change test (:mod:`~amhe_cli.estimation.attribution`), drawn with ``rng``
     as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, starting where the box moves
-    faster than ``min_speed`` [m/s]; None where not a clip's worth is in yet, or where a leg alone touched the
-    box (:func:`~amhe_cli.estimation.clips.leg_only_touch`) in some of the clips from the span's moving starts
-    and the others come to less than :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds' worth (the
-    next update tries again).
+    faster than ``min_speed`` [m/s]; None where not a clip's worth is in yet, or where the span waits for a leg
+    alone on the box (:func:`held_by_legs`; the next update tries again)."""
+    return None if held_by_legs(traj, scene, stop, since, min_speed) else \
+        _draw_decision_clips(traj, scene, stop, since, n, rng, min_speed)
 
-    Where enough of the span is a push, every clip start stays in the draw, a leg's too: a front foot strikes
-    the box beside the pushing trunk at every stride of some pushes, and those clips carry the switch.
-    *Measured* on an H200 (emulated T3 and T4, docs/evaluation.md "A leg on the box is not a push"): with the
-    clips of a leg alone left out of every decision (up to two thirds of a window's at T3's switch), both bounds
-    held from 3 s in 11 of 16 T3 runs (16 of 16 before), and drawn only where the box moved, in 4 of 8."""
+
+def _draw_decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
+                         min_speed: float):
+    """:func:`decision_clips`' draw, its span not held."""
     _, horizon, _ = clip_plan(traj)
-    span = (since, float(traj.t[stop - 1]))
     try:
-        hi = int(round(horizon[1] / traj.dt))
-        _, active, _ = moving_starts(traj, hi, span, min_speed, rest_travel(traj))
-        moving = np.flatnonzero(active)
-        need = MOVING_MIN / traj.dt
-        clean, legs = 0, False
-        # newest starts first, a chunk at a time, until enough are clean: a push's span is read in one chunk
-        for chunk in np.array_split(moving[::-1], max(1, int(np.ceil(moving.size / (2 * need))))):
-            alone = leg_only_touch(traj, scene, chunk, hi)
-            clean, legs = clean + int((~alone).sum()), legs or bool(alone.any())
-            if clean >= need:
-                break
-        if legs and clean < need:
-            return None
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
-            return sample_clips(traj, scene, n, horizon, rng, span, min_speed, rest_travel(traj))
+            return sample_clips(traj, scene, n, horizon, rng, (since, float(traj.t[stop - 1])), min_speed,
+                                rest_travel(traj))
     except AmheError:
         return None
 
@@ -351,6 +368,7 @@ class MovingHorizonEstimator:
         decision_errors: failures of decisions on their own thread, one line each, not yet taken
             (:meth:`take_decision_errors`).
         decision_times: wall time [s] of each line decision made so far (:meth:`describe_decisions`).
+        legs_held: change tests and line decisions that waited for a leg alone on the box (:func:`held_by_legs`).
         jobs: each test or decision run on its own thread (:attr:`concurrent`), as ``(t, started, ended,
             batches, what)``: the window's end [s]; when it started and ended, in seconds after that window's
             update began; the batches of the decisions' backend (None where it keeps no count); ``test``,
@@ -392,6 +410,7 @@ class MovingHorizonEstimator:
         self.decided = 0
         self.decision_errors: list[str] = []
         self.decision_times: list[float] = []
+        self.legs_held = 0
         self.mean = space.mean0.copy()
         self.std = space.scale * self.settings.sigma_init
         self.window_mean = self.mean.copy()
@@ -760,11 +779,17 @@ class MovingHorizonEstimator:
         if tm and tm.get("calls"):
             text += (f"; their backend: {tm['calls']} batches, steps {tm['steps']:.2f} s, candidates' fields "
                      f"{tm['fields'] + tm['upload']:.2f} s, read-back {tm['readback']:.2f} s in all")
+        if self.legs_held:
+            text += f"; {self.legs_held} test(s) or decision(s) held where the box moved only under a leg alone"
         return text
 
     def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):
-        """:func:`decision_clips` of this estimator's scene and ``min_speed``."""
-        return decision_clips(traj, self.scene, stop, since, n, rng, self.settings.min_speed)
+        """:func:`decision_clips` of this estimator's scene and ``min_speed``; a span that waits for a leg alone on
+        the box (:func:`held_by_legs`) is counted in :attr:`legs_held`."""
+        if held_by_legs(traj, self.scene, stop, since, self.settings.min_speed):
+            self.legs_held += 1
+            return None
+        return _draw_decision_clips(traj, self.scene, stop, since, n, rng, self.settings.min_speed)
 
     def _decision_cost(self, clips) -> RolloutCost:
         """The cost a line decision scores ``clips`` with: the windows' own, or with ``attribute_device`` one
