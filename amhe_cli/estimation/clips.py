@@ -162,9 +162,13 @@ def moving_starts(traj: Trajectory, hi: int, t_range=None, min_speed: float = 0.
     return usable, active, score
 
 
+class ClipsHeld(AmheError):
+    """:func:`sample_clips`' ``hold`` held the draw back."""
+
+
 def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.1, 0.2),
                  rng: np.random.Generator | None = None, t_range=None, min_speed: float = 0.02,
-                 min_travel: float = 0.0, candidates: int = 1) -> Clips:
+                 min_travel: float = 0.0, candidates: int = 1, hold=None) -> Clips:
     """Draw ``n_clips`` clips for SPI-style identification (paper §III-B).
 
     Horizons are uniform in ``horizon_range`` [s] (rounded to model steps);
@@ -178,14 +182,19 @@ def sample_clips(traj: Trajectory, scene: Scene, n_clips: int, horizon_range=(0.
     Starts over whose longest horizon the box goes no further than
     ``min_travel`` [m] (:func:`rest_travel`: what pose noise alone moves a
     resting box) count as at rest (:func:`moving_starts`). ``candidates`` > 1 draws that many times
-    ``n_clips`` (as many as there are) for :func:`choose_informative` to choose from.
+    ``n_clips`` (as many as there are) for :func:`choose_informative` to choose from. ``hold``, a callable
+    ``(moving starts, longest horizon [samples]) -> bool`` (e.g. :func:`legs_hold`), holds the draw back where
+    True, before anything is drawn.
 
     Raises:
+        ClipsHeld: ``hold`` held it.
         AmheError: no observed stretch is long enough for one clip.
     """
     rng = rng or np.random.default_rng(0)
     lo, hi = _horizon_steps(traj, horizon_range)
     usable, active, score = moving_starts(traj, hi, t_range, min_speed, min_travel)
+    if hold is not None and hold(np.flatnonzero(active), hi):
+        raise ClipsHeld("the draw was held")
     if active.sum() < n_clips:
         where = "in the log" if t_range is None else f"in {t_range[0]:g}-{t_range[1]:g} s of the log"
         warnings.warn(f"the box moves faster than {min_speed:g} m/s {where} at only {int(active.sum())} clip "
@@ -247,23 +256,27 @@ LEG_GAP = 0.005
 TRUNK_PUSH = 0.01
 
 
-def _checked_gaps(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int, every: int,
-                  part: str) -> np.ndarray:
-    """(N, K) robot–box gaps [m] of ``part`` (:meth:`~amhe_cli.model.scene.Scene.robot_box_gap`) at every
-    ``every``-th sample of the clips from ``starts`` over ``hi`` samples (and their last), each taken on the
-    nearest :data:`GAP_STRIDE`-th sample of the log (a foot moves under a centimetre in 4 ms: a fifth of the
-    ``mj_geomDistance`` calls, and most of a check's time); ``inf`` where the trunk origin is farther from the
-    box's centre than :data:`ROBOT_REACH` plus half the box's horizontal diagonal."""
-    reach = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
+def _gap_index(traj: Trajectory, starts: np.ndarray, hi: int, every: int) -> np.ndarray:
+    """(N, K) the log samples a gap is read at for the clips from ``starts`` over ``hi`` samples: every
+    ``every``-th sample of each (and its last), each on the nearest :data:`GAP_STRIDE`-th sample of the log (a
+    foot moves under a centimetre in 4 ms: a fifth of the ``mj_geomDistance`` calls, and most of a check's
+    time)."""
     offsets = np.unique(np.r_[np.arange(0, hi + 1, every), hi])
-    index = np.minimum(np.round((starts[:, None] + offsets[None]) / GAP_STRIDE).astype(int) * GAP_STRIDE,
-                       (len(traj) - 1) // GAP_STRIDE * GAP_STRIDE)
-    dist = np.full(len(traj), np.inf)
-    need = np.unique(index)
+    return np.minimum(np.round((starts[:, None] + offsets[None]) / GAP_STRIDE).astype(int) * GAP_STRIDE,
+                      (len(traj) - 1) // GAP_STRIDE * GAP_STRIDE)
+
+
+def _gaps(traj: Trajectory, scene: Scene, samples: np.ndarray, part: str) -> np.ndarray:
+    """(T,) robot–box gaps [m] of ``part`` (:meth:`~amhe_cli.model.scene.Scene.robot_box_gap`) at the log's
+    ``samples``; ``inf`` elsewhere, and where the trunk origin is farther from the box's centre than
+    :data:`ROBOT_REACH` plus half the box's horizontal diagonal."""
+    reach = ROBOT_REACH + 0.5 * float(np.hypot(*scene.config.box_size[:2]))
+    need = np.unique(samples)
     near = need[np.linalg.norm(traj.base_pos[need, :2] - traj.box_pos[need, :2], axis=1) <= reach]
+    dist = np.full(len(traj), np.inf)
     if near.size:
         dist[near] = scene.robot_box_gap(scene.qpos_qvel(traj, near)[0], part=part)
-    return dist[index]
+    return dist
 
 
 def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
@@ -279,7 +292,8 @@ def robot_box_clear(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int)
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:
         return np.zeros(0, dtype=bool)
-    return (_checked_gaps(traj, scene, starts, hi, 10, "robot") > CLEAR_GAP).all(axis=1)
+    index = _gap_index(traj, starts, hi, 10)
+    return (_gaps(traj, scene, index, "robot")[index] > CLEAR_GAP).all(axis=1)
 
 
 def leg_only_touch(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) -> np.ndarray:
@@ -298,12 +312,26 @@ def leg_only_touch(traj: Trajectory, scene: Scene, starts: np.ndarray, hi: int) 
     starts = np.asarray(starts, dtype=int)
     if starts.size == 0:
         return np.zeros(0, dtype=bool)
-    legs = _checked_gaps(traj, scene, starts, hi, GAP_STRIDE, "legs")
-    touch = legs <= LEG_GAP
+    index = _gap_index(traj, starts, hi, GAP_STRIDE)
+    touch = _gaps(traj, scene, index, "legs")[index] <= LEG_GAP
     if not touch.any():
         return touch.any(axis=1)
-    trunk = _checked_gaps(traj, scene, starts, hi, GAP_STRIDE, "trunk")
-    return (touch & (trunk > TRUNK_PUSH)).any(axis=1)
+    # the trunk's gap only where a leg touches
+    return (touch & (_gaps(traj, scene, index[touch], "trunk")[index] > TRUNK_PUSH)).any(axis=1)
+
+
+def legs_hold(traj: Trajectory, scene: Scene, moving: np.ndarray, hi: int, need: float) -> bool:
+    """Whether a leg alone touched the box (:func:`leg_only_touch`) in some of the clips from the ``moving`` starts
+    (sample indices, clips of ``hi`` samples) while the others number fewer than ``need``. The newest starts are
+    read first, a chunk at a time, until ``need`` of them are clean: a push's span is read in one chunk."""
+    moving = np.asarray(moving, dtype=int)
+    clean, legs = 0, False
+    for chunk in np.array_split(moving[::-1], max(1, int(np.ceil(moving.size / (2 * need))))):
+        alone = leg_only_touch(traj, scene, chunk, hi)
+        clean, legs = clean + int((~alone).sum()), legs or bool(alone.any())
+        if clean >= need:
+            return False
+    return legs
 
 
 def _horizon_steps(traj: Trajectory, horizon_range) -> tuple[int, int]:

@@ -35,8 +35,7 @@ import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
                                              NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
-from amhe_cli.estimation.clips import (join_clips, leg_only_touch, moving_starts, rest_travel, sample_clips,
-                                      window_clips)
+from amhe_cli.estimation.clips import join_clips, legs_hold, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
 from amhe_cli.estimation.identify import clip_plan
@@ -231,8 +230,8 @@ def held_by_legs(traj: Trajectory, scene: Scene, stop: int, since: float, min_sp
     """Whether a change test or line decision over ``since`` [s] to sample ``stop`` waits: a leg alone touched the
     box (:func:`~amhe_cli.estimation.clips.leg_only_touch`) in some of the clips from the span's moving starts
     (over the clips' longest horizon the box faster than ``min_speed`` [m/s], beyond the log's pose noise), and
-    the others come to less than :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds' worth. False where
-    no start moves.
+    the others come to less than :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds' worth
+    (:func:`~amhe_cli.estimation.clips.legs_hold`). False where no start moves.
 
     Where enough of the span is a push, it does not wait, a leg's clips and all: a front foot strikes the box
     beside the pushing trunk at every stride of some pushes, and those clips carry the switch. *Measured* on an
@@ -240,22 +239,7 @@ def held_by_legs(traj: Trajectory, scene: Scene, stop: int, since: float, min_sp
     of −35 % and +34 % that were not there from spans that wait here; with the clips of a leg alone left out of
     every decision instead (up to two thirds of a window's at T3's switch), both bounds held from 3 s in 11 of 16
     T3 runs (16 of 16 before), and drawn only where the box moved, in 4 of 8."""
-    _, horizon, _ = clip_plan(traj)
-    hi = int(round(horizon[1] / traj.dt))
-    try:
-        _, active, _ = moving_starts(traj, hi, (since, float(traj.t[stop - 1])), min_speed, rest_travel(traj))
-    except AmheError:
-        return False
-    moving = np.flatnonzero(active)
-    need = MOVING_MIN / traj.dt
-    clean, legs = 0, False
-    # newest starts first, a chunk at a time, until enough are clean: a push's span is read in one chunk
-    for chunk in np.array_split(moving[::-1], max(1, int(np.ceil(moving.size / (2 * need))))):
-        alone = leg_only_touch(traj, scene, chunk, hi)
-        clean, legs = clean + int((~alone).sum()), legs or bool(alone.any())
-        if clean >= need:
-            return False
-    return legs
+    return _draw_or_hold(traj, scene, stop, since, 0, None, min_speed)[1]
 
 
 def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
@@ -264,21 +248,28 @@ def decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: i
     as ``identify`` draws them (its horizons) from ``since`` [s] to sample ``stop``, starting where the box moves
     faster than ``min_speed`` [m/s]; None where not a clip's worth is in yet, or where the span waits for a leg
     alone on the box (:func:`held_by_legs`; the next update tries again)."""
-    return None if held_by_legs(traj, scene, stop, since, min_speed) else \
-        _draw_decision_clips(traj, scene, stop, since, n, rng, min_speed)
+    return _draw_or_hold(traj, scene, stop, since, n, rng, min_speed)[0]
 
 
-def _draw_decision_clips(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator,
-                         min_speed: float):
-    """:func:`decision_clips`' draw, its span not held."""
+def _draw_or_hold(traj: Trajectory, scene: Scene, stop: int, since: float, n: int, rng: np.random.Generator | None,
+                  min_speed: float):
+    """(:func:`decision_clips`, :func:`held_by_legs`) of one reading of the span's moving starts; with ``rng`` None
+    only whether it is held (nothing drawn)."""
     _, horizon, _ = clip_plan(traj)
+    need = MOVING_MIN / traj.dt
+    held = []
+
+    def hold(moving: np.ndarray, hi: int) -> bool:
+        held.append(legs_hold(traj, scene, moving, hi, need))
+        return held[0] or rng is None
+
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
             return sample_clips(traj, scene, n, horizon, rng, (since, float(traj.t[stop - 1])), min_speed,
-                                rest_travel(traj))
+                                rest_travel(traj), hold=hold), False
     except AmheError:
-        return None
+        return None, bool(held and held[0])
 
 
 def known_costs(Q: np.ndarray, JQ: np.ndarray, evaluate):
@@ -786,10 +777,9 @@ class MovingHorizonEstimator:
     def _decision_clips(self, traj: Trajectory, stop: int, since: float, n: int, rng: np.random.Generator):
         """:func:`decision_clips` of this estimator's scene and ``min_speed``; a span that waits for a leg alone on
         the box (:func:`held_by_legs`) is counted in :attr:`legs_held`."""
-        if held_by_legs(traj, self.scene, stop, since, self.settings.min_speed):
-            self.legs_held += 1
-            return None
-        return _draw_decision_clips(traj, self.scene, stop, since, n, rng, self.settings.min_speed)
+        clips, held = _draw_or_hold(traj, self.scene, stop, since, n, rng, self.settings.min_speed)
+        self.legs_held += held
+        return clips
 
     def _decision_cost(self, clips) -> RolloutCost:
         """The cost a line decision scores ``clips`` with: the windows' own, or with ``attribute_device`` one
