@@ -3,7 +3,7 @@
 Usage::
 
     python benchmarks/locate_placement.py LOG [LOG ...] --held M,MU [--lag 0.85] [--back 2.5] [--ahead 1.0]
-        [--draws 6] [--tol 0,5,10]
+        [--draws 6] [--tol 0,5,10] [--moved]
 
 A decision that seeks its change (``SplitTracker.search_from``) draws :data:`LOCATE_CLIPS` clips from the data
 before and after it, scores both lines and the split held on each, and places the change at the clip from which
@@ -13,7 +13,8 @@ clips from ``[t_c − back, t_c + ahead]`` (a provisional decision's span), the 
 the run started from), the lines centred on ``--lag`` × the friction force after the change (the windows' product
 follows a change over seconds). One line per LOG: each draw's placement minus ``t_c`` [s], per rule: ``tol`` 0 is
 ``locate`` as the MHE runs it; ``tol`` p takes the latest clip whose gain is within p % of the largest (a later
-placement where the clips before the change barely tell). Placed early, a decision scores the old box's data
+placement where the clips before the change barely tell); with ``--moved``, also ``locate`` over only the
+candidates that move the friction force by :data:`CHANGE` or more. Placed early, a decision scores the old box's data
 with the new one's (docs/evaluation.md, "The leg gate in the emulated loop").
 """
 
@@ -28,9 +29,9 @@ NAMES = ("box_mass", "box_friction")
 
 
 def placements(log: str, held: tuple[float, float], lag: float, back: float, ahead: float, draws: int,
-               tols: list[float]) -> dict[float, list[float]]:
-    """{tol: [placement − t_c per draw]} of one LOG (module doc)."""
-    from amhe_cli.estimation.attribution import FACTORS, LOCATE_CLIPS, LOCATE_MIN, locate
+               tols: list[float], moved: bool = False) -> dict:
+    """{rule: [placement − t_c per draw]} of one LOG (module doc): a ``tol`` per rule, and ``"moved"``."""
+    from amhe_cli.estimation.attribution import CHANGE, FACTORS, LOCATE_CLIPS, LOCATE_MIN, locate
     from amhe_cli.estimation.clips import rest_travel, sample_clips
     from amhe_cli.estimation.cost import RolloutCost, StateWeights
     from amhe_cli.estimation.identify import IdentifySettings, clip_plan
@@ -57,7 +58,8 @@ def placements(log: str, held: tuple[float, float], lag: float, back: float, ahe
     P[:, im], P[:, iu] = splits[:, 0], splits[:, 1]
     _, horizon, _ = clip_plan(traj)
     weights = StateWeights.for_log(traj, dict(IdentifySettings().sigma))
-    out = {tol: [] for tol in tols}
+    out = {tol: [] for tol in tols} | ({"moved": []} if moved else {})
+    far = np.abs(np.log(splits[:-1].prod(axis=1) / (m0 * mu0))) >= CHANGE  # candidates that move the force
     for d in range(draws):
         clips = sample_clips(traj, pr.scene, LOCATE_CLIPS, horizon, np.random.default_rng(100 + d),
                              (t_c - back, t_c + ahead), MHESettings().min_speed, rest_travel(traj))
@@ -70,6 +72,8 @@ def placements(log: str, held: tuple[float, float], lag: float, back: float, ahe
             j = locate(C[:-1], C[-1]) if tol == 0 else \
                 int(np.flatnonzero(gain >= gain.max() - tol / 100 * abs(gain.max()))[-1])
             out[tol].append(float(traj.t[clips.start[j]]) - t_c)
+        if moved:
+            out["moved"].append(float(traj.t[clips.start[locate(C[:-1][far], C[-1])]]) - t_c)
     return out
 
 
@@ -82,22 +86,26 @@ def main() -> None:
     ap.add_argument("--ahead", type=float, default=1.0, help="seconds of data after it")
     ap.add_argument("--draws", type=int, default=6)
     ap.add_argument("--tol", default="0,5,10", help="rules, comma-separated: 0 is locate, p the latest within p %%")
+    ap.add_argument("--moved", action="store_true", help="also locate over the candidates that move the force")
     a = ap.parse_args()
     warnings.simplefilter("ignore")
     held = tuple(float(x) for x in a.held.split(","))
     tols = [float(x) for x in a.tol.split(",")]
-    early = {tol: 0 for tol in tols}
-    late = {tol: 0 for tol in tols}
+    early, late = {}, {}
+
+    def name(rule) -> str:
+        return rule if isinstance(rule, str) else f"tol {rule:g}"
+
     for log in a.logs:
-        out = placements(log, held, a.lag, a.back, a.ahead, a.draws, tols)
+        out = placements(log, held, a.lag, a.back, a.ahead, a.draws, tols, a.moved)
         print(log.rstrip("/").split("/")[-1] + ": " + " | ".join(
-            f"tol {tol:g}: " + " ".join(f"{e:+.2f}" for e in v) + f" (median {np.median(v):+.2f})"
-            for tol, v in out.items()), flush=True)
-        for tol, v in out.items():
-            early[tol] += sum(e < -0.3 for e in v)
-            late[tol] += sum(e > 0.3 for e in v)
+            f"{name(rule)}: " + " ".join(f"{e:+.2f}" for e in v) + f" (median {np.median(v):+.2f})"
+            for rule, v in out.items()), flush=True)
+        for rule, v in out.items():
+            early[rule] = early.get(rule, 0) + sum(e < -0.3 for e in v)
+            late[rule] = late.get(rule, 0) + sum(e > 0.3 for e in v)
     print("placed more than 0.3 s early / late, of " + str(a.draws * len(a.logs)) + " draws: " +
-          ", ".join(f"tol {tol:g}: {early[tol]} / {late[tol]}" for tol in tols))
+          ", ".join(f"{name(rule)}: {early[rule]} / {late[rule]}" for rule in early))
 
 
 if __name__ == "__main__":
