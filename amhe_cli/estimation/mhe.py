@@ -35,7 +35,7 @@ import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
                                              NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
-from amhe_cli.estimation.clips import join_clips, legs_hold, rest_travel, sample_clips, window_clips
+from amhe_cli.estimation.clips import ClipsHeld, join_clips, legs_hold, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
 from amhe_cli.estimation.identify import clip_plan
@@ -257,19 +257,22 @@ def _draw_or_hold(traj: Trajectory, scene: Scene, stop: int, since: float, n: in
     only whether it is held (nothing drawn)."""
     _, horizon, _ = clip_plan(traj)
     need = MOVING_MIN / traj.dt
-    held = []
+    held = False
 
     def hold(moving: np.ndarray, hi: int) -> bool:
-        held.append(legs_hold(traj, scene, moving, hi, need))
-        return held[0] or rng is None
+        nonlocal held
+        held = legs_hold(traj, scene, moving, hi, need)
+        return held or rng is None  # without rng only whether it is held: nothing drawn
 
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a short span holds fewer moving starts than n: it still tells
             return sample_clips(traj, scene, n, horizon, rng, (since, float(traj.t[stop - 1])), min_speed,
                                 rest_travel(traj), hold=hold), False
-    except AmheError:
-        return None, bool(held and held[0])
+    except ClipsHeld:
+        return None, held
+    except AmheError:  # not a clip's worth in yet
+        return None, False
 
 
 def known_costs(Q: np.ndarray, JQ: np.ndarray, evaluate):
