@@ -31,7 +31,7 @@ NAMES = ("box_mass", "box_friction")
 def placements(log: str, held: tuple[float, float], lag: float, back: float, ahead: float, draws: int,
                tols: list[float], moved: bool = False) -> dict:
     """{rule: [placement − t_c per draw]} of one LOG (module doc): a ``tol`` per rule, and ``"moved"``."""
-    from amhe_cli.estimation.attribution import CHANGE, FACTORS, LOCATE_CLIPS, LOCATE_MIN, locate
+    from amhe_cli.estimation.attribution import CHANGE, FACTORS, LOCATE_CLIPS, change_gains, locate
     from amhe_cli.estimation.clips import rest_travel, sample_clips
     from amhe_cli.estimation.cost import RolloutCost, StateWeights
     from amhe_cli.estimation.identify import IdentifySettings, clip_plan
@@ -65,9 +65,7 @@ def placements(log: str, held: tuple[float, float], lag: float, back: float, ahe
                              (t_c - back, t_c + ahead), MHESettings().min_speed, rest_travel(traj))
         with RolloutCost(pr.scene, pr.space, clips, weights, prior_weight=0.0) as cost:
             C = cost.evaluate(P).per_clip
-        dd = C[-1][None] - C[:-1]
-        dd = np.where(np.isfinite(dd), dd, 0.0)
-        gain = np.cumsum(dd[:, ::-1], axis=1)[:, ::-1].max(axis=0)[:max(len(clips) - LOCATE_MIN, 0) + 1]
+        gain = change_gains(C[:-1], C[-1])
         for tol in tols:
             j = locate(C[:-1], C[-1]) if tol == 0 else \
                 int(np.flatnonzero(gain >= gain.max() - tol / 100 * abs(gain.max()))[-1])

@@ -234,20 +234,24 @@ def line_minimum(factors: np.ndarray, J: np.ndarray) -> tuple[float, float]:
     return float(np.exp(xm)), float(J[k])
 
 
-def locate(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -> int:
-    """First clip after a change: the single change point the clips' costs explain best.
+def change_gains(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -> np.ndarray:
+    """(N_c − keep_min + 1,) the gain of a change placed at each clip ``j`` that keeps ``keep_min`` clips after
+    it: ``max_k Σ_{i ≥ j} (held_i − per_clip[k, i])`` (a likelihood-ratio change point, the best candidate each).
 
     ``per_clip`` (B, N_c) is the data cost of each line candidate on each clip, ``held`` (N_c,) that of the
-    split before the change, the clips in time order. The index returned maximises
-    ``max_k Σ_{i ≥ j} (held_i − per_clip[k, i])`` (a likelihood-ratio change point) over ``j`` in
-    ``[0, N_c − keep_min]``. Diverged rollouts count as the largest finite gain seen."""
+    split before the change, the clips in time order. Diverged rollouts count as the largest finite gain seen."""
     d = np.asarray(held, dtype=float)[None, :] - np.asarray(per_clip, dtype=float)
     finite = np.isfinite(d)
     bound = float(np.abs(d[finite]).max()) if finite.any() else 0.0
     d = np.clip(np.where(finite, d, bound), -bound, bound)
     gain = np.cumsum(d[:, ::-1], axis=1)[:, ::-1].max(axis=0)
-    last = max(gain.size - max(int(keep_min), 1), 0)
-    return int(np.argmax(gain[:last + 1]))
+    return gain[:max(gain.size - max(int(keep_min), 1), 0) + 1]
+
+
+def locate(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -> int:
+    """First clip after a change: the single change point the clips' costs explain best, the clip ``j`` in
+    ``[0, N_c − keep_min]`` of the largest :func:`change_gains` (arguments as there)."""
+    return int(np.argmax(change_gains(per_clip, held, keep_min)))
 
 
 def test_reading(J: np.ndarray) -> tuple[float, int] | None:
