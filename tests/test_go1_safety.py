@@ -168,6 +168,39 @@ def test_a_stall_that_the_queued_states_bridge_is_not_a_lost_link():
         relay.stop()
 
 
+class LateClockLink(FakeLink):
+    """A robot that streams, seen by a relay thread held up once for 60 ms right after a receive that found nothing
+    (a client loading its GPU backend at start): the states that queued meanwhile wait for the next receive."""
+
+    def __init__(self):
+        super().__init__()
+        self.stall = threading.Event()
+
+    def recv(self, timeout=0.0):
+        if self.stall.is_set():
+            self.stall.clear()
+            time.sleep(0.06)
+            return None
+        return super().recv(timeout)
+
+
+def test_a_stall_after_an_empty_receive_is_not_a_lost_link():
+    """An emulated T3 run stopped at its start with "no valid robot state for 59 ms" while the emulator streamed
+    (its longest gap 2.7 ms): the silence was measured to after a stall that followed an empty receive."""
+    link = LateClockLink()
+    relay = run_relay(link)
+    try:
+        assert relay.wait_ready(2.0)
+        for _ in range(3):
+            link.stall.set()
+            time.sleep(0.15)
+        assert not relay.failed.is_set(), relay.reason
+        link.silent = True  # a real silence still trips it
+        assert relay.failed.wait(1.0) and relay.reason.endswith("(link lost)")
+    finally:
+        relay.stop()
+
+
 class CorruptingLink(FakeLink):
     """A robot whose packets, once told, all fail the link's checks (counted as the real link counts them)."""
 

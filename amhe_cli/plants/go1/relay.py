@@ -288,14 +288,18 @@ class Relay:
             if last_t is not None:
                 self.periods.append(now - last_t)
             last_t = now
+            asked = time.monotonic()
             try:
                 state = self.link.recv()
             except Exception as exc:  # noqa: BLE001 - a broken socket is a lost link
                 state = None
                 self._trip(f"robot link failed: {exc}")
-            # the watchdog's clock is read after the receive, not at the top of the period: a stall in between
-            # (the garbage collector stopping every thread for 50 ms) delivers the states that queued meanwhile,
-            # and stamping them with the stale time made the next empty receive look like 50 ms of silence
+            # a state is stamped when received, not at the top of the period: a stall before the receive (the
+            # garbage collector stopping every thread for 50 ms) delivers the states that queued meanwhile, and
+            # stamping them with the stale time made the next empty receive look like 50 ms of silence. A silence
+            # runs to when the socket was asked and found empty, not to after it: a stall between the two (an
+            # emulated T3 run, its client loading its GPU backend at start: "no valid robot state for 59 ms" while
+            # the robot streamed) delivers its states to the next receive
             received = time.monotonic()
             if state is not None:
                 self.state, self.state_time = state, received
@@ -314,8 +318,8 @@ class Relay:
                         self.safety.check(state.rpy, state.tau_est, state.dq)
                     except SafetyTrip as trip:
                         self._trip(str(trip))
-            elif self.phase not in ("wait", "damp") and received - self.state_time > s.state_timeout:
-                self._trip(self._silence(received))
+            elif self.phase not in ("wait", "damp") and asked - self.state_time > s.state_timeout:
+                self._trip(self._silence(asked))
             with self._send_lock:  # damp() from another thread waits for this command, then wins
                 if self.phase in ("wait", "damp"):
                     cmd, q_sent, mode = damping, None, MODE_DAMPING
