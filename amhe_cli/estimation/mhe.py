@@ -231,7 +231,7 @@ def held_by_legs(traj: Trajectory, scene: Scene, stop: int, since: float, min_sp
     box (:func:`~amhe_cli.estimation.clips.leg_only_touch`) in some of the clips from the span's moving starts
     (over the clips' longest horizon the box faster than ``min_speed`` [m/s], beyond the log's pose noise), and
     the others come to less than :data:`~amhe_cli.estimation.attribution.MOVING_MIN` seconds' worth, or the leg's
-    outnumber them :data:`~amhe_cli.estimation.clips.LEGS_OUTNUMBER` to one
+    outnumber them more than :data:`~amhe_cli.estimation.clips.LEGS_OUTNUMBER` to one
     (:func:`~amhe_cli.estimation.clips.legs_hold`). False where no start moves.
 
     Where enough of the span is a push, it does not wait, a leg's clips and all: a front foot strikes the box
