@@ -9,7 +9,8 @@
 # starting belief per task, TASK.belief.yaml, e.g. from `amhe probe --target sim`):
 #     OUT=results BELIEFS=dir benchmarks/go1_emulated_gpu.sh t3,t4 SEEDS [FIRST_SEED] [more go1_emulated_runs.py args]
 # Detached (`setsid`), it outlives the command that started it, so a later command can wait for its rows.
-# The recordings worth reading (falls, trips, changes held after 3 s; at most 4) are copied to $OUT/kept, a
+# The recordings worth reading (falls, trips, changes held after 3 s; at most 4) are copied to $OUT/kept, each with
+# its last 10 s as NAME.tail.mcap (a few MB: a whole recording can be over what a lent host sends back), a
 # folder a caller brings back before the host is returned with the rest.
 set -u
 OUT=${OUT:-gpu_loop}

@@ -42,6 +42,7 @@ there to the planner (:func:`attribution_latency`)), then one row per (task, mod
     python benchmarks/go1_emulated_runs.py --tasks t3,t4 --modes baseline,adaptive --seeds 8 --cores-per-run 4
                                            [--duration S] [--config run.yaml] [--pose-noise 0.001,0.2deg] [--pose-latency 0.02] [--threads 3]
                                            [--label TEXT]   # tags the rows: --table keeps labels apart
+                                           [--keep DIR [--keep-max 4] [--keep-tail 10]]  # falls' recordings, and their last seconds
     python benchmarks/go1_emulated_runs.py --table rows.jsonl [more.jsonl ...]   # the table of runs kept earlier
 
 A grid cut off keeps every finished run in ``--jsonl``; ``--table`` prints the table of
@@ -209,6 +210,60 @@ def worth_reading(rows: list[dict], limit: int) -> list[dict]:
         return max((np.inf if h is None else h for h in held), default=-1.0)
     ranked = sorted(rows, key=lambda r: (not r.get("fell"), not r.get("trip"), -late(r)))
     return [r for r in ranked if r.get("fell") or r.get("trip") or late(r) > 3.0][:limit]
+
+
+def keep_tail(src: str, dst: str, seconds: float) -> int:
+    """Write to ``dst`` the last ``seconds`` [s] of the MCAP recording ``src`` (by log time, its end read from the
+    summary or, for a recording cut short, from its messages): every channel's last message before then (the scene,
+    the gains and the belief are published once, at the start), the messages from there on, every metadata record
+    (the run's log). Returns the messages written. A fall's whole recording can be over what a
+    lent host sends back (15 MB): stop 75's one fall, kept on the host, was not read so; its last seconds are
+    what tells it.
+
+    Raises:
+        OSError: ``src`` unreadable or ``dst`` not writable; mcap's errors for a file that is not an MCAP."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    with open(src, "rb") as fh:
+        reader = make_reader(fh)
+        header = reader.get_header()
+        summary = reader.get_summary()
+        if summary is not None and summary.statistics is not None and summary.statistics.message_count:
+            end = summary.statistics.message_end_time
+        else:
+            end = max((m.log_time for _, _, m in reader.iter_messages()), default=0)
+        since = end - int(round(seconds * 1e9))
+        with open(dst, "wb") as out:
+            writer = Writer(out)
+            writer.start(profile=header.profile, library=header.library)
+            schemas, channels, before, n = {}, {}, {}, 0
+
+            def write(schema, channel, message) -> None:
+                if channel.id not in channels:
+                    sid = 0
+                    if schema is not None:
+                        if schema.id not in schemas:
+                            schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+                        sid = schemas[schema.id]
+                    channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid,
+                                                                   dict(channel.metadata))
+                writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time,
+                                   message.sequence)
+
+            for schema, channel, message in reader.iter_messages(log_time_order=True):
+                if message.log_time < since:
+                    before[channel.id] = (schema, channel, message)
+                    continue
+                for held in sorted(before.values(), key=lambda m: m[2].log_time):
+                    write(*held)
+                    n += 1
+                before = {}
+                write(schema, channel, message)
+                n += 1
+            for record in reader.iter_metadata():
+                writer.add_metadata(record.name, dict(record.metadata))
+            writer.finish()
+    return n
 
 
 def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> str:
@@ -419,6 +474,9 @@ def main() -> None:
                     help="copy the recordings worth reading (falls, trips, changes held after 3 s; at most "
                          "--keep-max) here at the end, e.g. a folder that comes back from a lent host")
     ap.add_argument("--keep-max", type=int, default=4)
+    ap.add_argument("--keep-tail", type=float, default=10.0, metavar="S",
+                    help="beside each kept recording, its last S seconds as NAME.tail.mcap (a few MB, under what a "
+                         "lent host sends back; the whole one may not be); 0: none")
     ap.add_argument("--table", nargs="+", default=None, metavar="JSONL",
                     help="print the table of the runs in these --jsonl files and exit")
     args = ap.parse_args()
@@ -478,6 +536,13 @@ def main() -> None:
             if os.path.exists(src):
                 shutil.copy(src, args.keep)
                 print(f"kept {os.path.basename(src)} in {args.keep}", flush=True)
+                if args.keep_tail > 0:
+                    tail = os.path.join(args.keep, os.path.basename(src)[:-len(".mcap")] + ".tail.mcap")
+                    try:
+                        n = keep_tail(src, tail, args.keep_tail)
+                        print(f"kept its last {args.keep_tail:g} s ({n} messages) as {os.path.basename(tail)}", flush=True)
+                    except Exception as exc:  # noqa: BLE001 - the whole recording is kept either way
+                        print(f"could not cut the last {args.keep_tail:g} s of {src}: {exc}", flush=True)
 
 
 if __name__ == "__main__":

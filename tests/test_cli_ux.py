@@ -379,6 +379,31 @@ def test_the_emulated_grid_keeps_the_recordings_worth_reading_falls_first(emulat
     assert [r["seed"] for r in emulated_grid.worth_reading(rows, 2)] == [4, 3]
 
 
+def test_the_emulated_grid_keeps_a_kept_recording_s_last_seconds_readable_on_their_own(emulated_grid, tmp_path):
+    """``--keep-tail``: the last seconds of a recording too large to come back from a lent host, with each channel's
+    last message before them (a scene published once at the start) and the run's log; the rest left out."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+    src, dst = tmp_path / "run.mcap", tmp_path / "run.tail.mcap"
+    with open(src, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2", library="test")
+        sid = w.register_schema("std_msgs/msg/String", "ros2msg", b"string data")
+        scene, state = (w.register_channel(t, "cdr", sid) for t in ("/amhe/scene", "/joint_states"))
+        w.add_message(scene, 0, b"scene", 0, 0)
+        for k in range(201):  # 0 to 20 s, every 0.1 s
+            w.add_message(state, k * 100_000_000, bytes([k]), k * 100_000_000, k)
+        w.add_metadata("amhe_run_log", {"0": "t=19.50 s: fall prevention: trunk tilt 18° > 17°"})
+        w.finish()
+    assert emulated_grid.keep_tail(str(src), str(dst), 5.0) == 2 + 51
+    reader = make_reader(open(dst, "rb"))
+    got = [(c.topic, m.log_time, m.data) for _, c, m in reader.iter_messages(log_time_order=True)]
+    assert got[0] == ("/amhe/scene", 0, b"scene")
+    assert [t for topic, t, _ in got[1:]] == [k * 100_000_000 for k in range(149, 201)]  # the state before, then 15-20 s
+    assert got[-1][2] == bytes([200])
+    assert [dict(m.metadata) for m in reader.iter_metadata()] == [{"0": "t=19.50 s: fall prevention: trunk tilt 18° > 17°"}]
+
+
 def test_the_emulated_grid_names_each_label_s_recordings_apart(emulated_grid):
     """``benchmarks/go1_emulated_runs.py``: two grids side by side into one ``--out-dir`` (two codes, run for run)
     write one file per run each, not one file at once."""
