@@ -224,6 +224,8 @@ def keep_tail(src: str, dst: str, seconds: float) -> int:
         OSError: ``src`` unreadable or ``dst`` not writable; mcap's errors for a file that is not an MCAP."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
+
+    from amhe_cli.io.writer import chunk_compression
     with open(src, "rb") as fh:
         reader = make_reader(fh)
         header = reader.get_header()
@@ -234,7 +236,7 @@ def keep_tail(src: str, dst: str, seconds: float) -> int:
             end = max((m.log_time for _, _, m in reader.iter_messages()), default=0)
         since = end - int(round(seconds * 1e9))
         with open(dst, "wb") as out:
-            writer = Writer(out)
+            writer = Writer(out, compression=chunk_compression())  # as the run's own recording is written
             writer.start(profile=header.profile, library=header.library)
             schemas, channels, before, n = {}, {}, {}, 0
 
