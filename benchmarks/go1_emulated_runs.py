@@ -12,7 +12,8 @@ laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pa
 once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns, its longest gap between two state packets sent and the states its socket refused, so a watchdog
-trip on a gap the rig made is told from the client's own; ``lost_box`` counts the client's push-to-approach
+trip on a gap the rig made is told from the client's own, and the longest gap between two commands it received
+(the motors hold the last command meanwhile: a client that stalled); ``lost_box`` counts the client's push-to-approach
 switches, ``holds`` the relay's soft holds of a stale plan, ``recoveries_why`` holds [t, reason] of each
 fall-reflex recovery,
 ``robot_reads`` [t, servo share, limit share] of each read of the robot that the planner followed,
@@ -29,7 +30,8 @@ there to the planner (:func:`attribution_latency`)), then one row per (task, mod
 * S_R [%] (the client's success: box within the task's radius, no fall, no trip),
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
   recoveries, other safety trips, e_g mean ± std [m], t_exec mean ± std [s] (to the
-  goal, else the run's length), the planner's replanning rate (median over runs, Hz);
+  goal, else the run's length), the planner's replanning rate (median over runs, Hz), the robot's longest
+  wait for a command (``cmd gap``, the worst run's [ms]);
 * the online MHE's error after each change of the world (T3's mass switch, T4's
   friction step; the emulator prints when each fires and the client's recording
   holds its own start on the same monotonic clock): from 3 s after the change to
@@ -79,6 +81,7 @@ AMHE = child_command()
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")
+EMULATOR_COMMANDS = re.compile(r"longest command gap ([0-9.]+) ms")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
@@ -327,6 +330,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
             refused = EMULATOR_REFUSED.search(line)
             if refused:
                 emulator["refused_sends"] = int(refused.group(1))
+            commands = EMULATOR_COMMANDS.search(line)
+            if commands:  # what the robot saw of its client: the motors hold the last command meanwhile
+                emulator["longest_command_gap_ms"] = float(commands.group(1))
     try:
         res = json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, json.JSONDecodeError, AttributeError):
@@ -389,11 +395,11 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 def table(rows: list[dict], tasks, modes) -> None:
     """One row per (task, mode, ``--label``): S_R, falls, recoveries, trips, e_g, t_exec (to the goal, else the run's
-    length), replanning rate, the medians of a run's
+    length), replanning rate, the worst run's longest command gap at the robot, the medians of a run's
     lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
     each change."""
     print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
-          f"{'e_g mean ± std [m]':>19} {'t_exec [s]':>12} {'Hz':>5} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
+          f"{'e_g mean ± std [m]':>19} {'t_exec [s]':>12} {'Hz':>5} {'gap ms':>6} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
           "worst |mass err| / |μ err|, runs within 10 % / 0.05")
 
     def median(sel, key):
@@ -407,6 +413,8 @@ def table(rows: list[dict], tasks, modes) -> None:
             e_g = np.array([r.get("e_g", np.nan) for r in sel], dtype=float)
             t_exec = np.array([r.get("t_exec", np.nan) for r in sel], dtype=float)
             hz = [r["control_hz"] for r in sel if "control_hz" in r]
+            gaps = [r["emulator"]["longest_command_gap_ms"] for r in sel
+                    if "longest_command_gap_ms" in r.get("emulator", {})]
             segs = []
             ok = [[g for g in r["mhe"] if "error" not in g] for r in sel]
             nseg = max((len(g) for g in ok), default=0)
@@ -432,7 +440,7 @@ def table(rows: list[dict], tasks, modes) -> None:
                   f"{sum(r['fell'] for r in sel):5d} {sum(int(r.get('recoveries', 0)) for r in sel):5d} "
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
                   f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f} {np.nanmean(t_exec):5.1f} ± {np.nanstd(t_exec):4.1f} "
-                  f"{np.median(hz) if hz else float('nan'):5.1f} "
+                  f"{np.median(hz) if hz else float('nan'):5.1f} {f'{max(gaps):.0f}' if gaps else '-':>6} "
                   f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs)
                   + (f"  [{label}]" if label else ""))
 

@@ -191,5 +191,6 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
         click.echo(f"amhe emulate go1: {st.ticks * 0.002:.2f} s emulated, packets valid {st.valid} bad {st.bad} "
                    f"ignored {st.ignored}, states sent {st.sent} (refused {st.send_failed}), poses {st.poses}, "
                    f"overruns {st.overruns}, "
-                   f"longest state gap {st.longest_gap * 1e3:.1f} ms ({emu.scheduling})",
+                   f"longest state gap {st.longest_gap * 1e3:.1f} ms ({emu.scheduling}), "
+                   f"longest command gap {st.longest_command_gap * 1e3:.1f} ms",
                    err=True)

@@ -140,6 +140,10 @@ class EmulatorStats:
             that no ``link-loss`` fault caused means the emulator itself was
             held up (a busy or paused machine), and a client that damped
             then did right.
+        longest_command_gap: the longest wall-clock time between two valid
+            LowCmd packets [s], as the robot saw its client (from the first on):
+            meanwhile its motors held the last command. A client whose process
+            stalls shows here (stop 76: 0.23 s mid-stride in a fall).
     """
 
     valid: int = 0
@@ -151,6 +155,7 @@ class EmulatorStats:
     poses: int = 0
     ticks: int = 0
     longest_gap: float = 0.0
+    longest_command_gap: float = 0.0
 
 
 def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray,
@@ -313,6 +318,7 @@ class Go1Emulator:
         self._acc = np.zeros(6)
         self._next_pose = 0.0
         self._last_sent: float | None = None
+        self._last_cmd_wall: float | None = None
         self._stop = threading.Event()
         self._thread = None
         self._running = False
@@ -438,6 +444,10 @@ class Go1Emulator:
             self._record(t, None)
             return
         self._stats.valid += 1
+        wall = time.monotonic()
+        if self._last_cmd_wall is not None:
+            self._stats.longest_command_gap = max(self._stats.longest_command_gap, wall - self._last_cmd_wall)
+        self._last_cmd_wall = wall
         self._cmd = cmd
         self._client = addr
         if self._t_first is None:
