@@ -254,10 +254,14 @@ def test_a_soft_hold_is_not_recorded_as_the_runs_servo():
     from amhe_cli.plants.go1.mocap import PoseSample
     from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
 
-    class FreshPoses:  # motion capture that always has a pose just now
+    class FreshPoses:  # motion capture that always has a pose just now (a tick's time is a little before)
         def latest(self, name):
-            now = time.monotonic()
-            return PoseSample(name, np.array([0.0, 0.0, 0.27]), np.array([1.0, 0, 0, 0]), now, now, int(now * 1e3))
+            now = time.monotonic() - 0.001
+            return PoseSample(name, np.array([0.0, 0.0, 0.27]), np.array([1.0, 0, 0, 0]), now, now, int(now * 1e6))
+
+        def since(self, name, seq):
+            got = self.latest(name)
+            return [got] if got.seq > seq else []
 
         def close(self):
             pass

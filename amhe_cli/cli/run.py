@@ -275,7 +275,7 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     from amhe_cli.model.scene import Scene
     from amhe_cli.plants.go1.latency import parse_mocap_latency
     from amhe_cli.plants.go1.link import parse_address
-    from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings
+    from amhe_cli.plants.go1.plant import Go1Plant, Go1Settings, relay_process_setting
     from amhe_cli.plants.go1.safety import SafetySettings
 
     scene = Scene(task_scene_config(task, 0.002, settings.kp, settings.kd))
@@ -287,7 +287,8 @@ def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, 
     go1 = Go1Settings(robot=parse_address(robot, 8007), local_port=local_port, mocap=mocap, base_body=base_body,
                       box_body=box_body, arm=arm, kp=settings.kp, kd=settings.kd,
                       safety=SafetySettings.from_dict(cfg.get("safety")),
-                      mocap_latency=parse_mocap_latency(cfg.get("mocap_latency", "auto")))
+                      mocap_latency=parse_mocap_latency(cfg.get("mocap_latency", "auto")),
+                      relay_process=relay_process_setting(cfg.get("relay_process", True)))
     signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     plant = Go1Plant(scene, go1)
     if not quiet:

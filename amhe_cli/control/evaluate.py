@@ -36,7 +36,7 @@ from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
 CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task",
-               "safety", "reflex", "mhe_shadow", "mocap_latency", "robot_read"}
+               "safety", "reflex", "mhe_shadow", "mocap_latency", "robot_read", "relay_process"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:

@@ -55,6 +55,8 @@ REACQUIRE_AFTER = 0.5
 QUAT_NORM_TOL = 0.01
 #: At most this many pending warnings are kept; the rest are counted in one summary line.
 MAX_WARNINGS = 100
+#: Accepted samples kept per body for :meth:`PoseSource.since` (about 16 s at 120 Hz).
+HISTORY = 2000
 #: Backends of ``motioncapture`` that :func:`open_pose_source` accepts.
 MOCAP_KINDS = ("optitrack", "vicon", "qualisys", "vrpn", "nokov", "mock")
 #: Rate of the ``mock`` backend [Hz] (the public setup's OptiTrack rate).
@@ -285,6 +287,7 @@ class PoseSource:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._latest: dict[str, PoseSample] = {}
+        self._history: dict[str, deque[PoseSample]] = {}
         self._tracks: dict[str, _Track] = {}
         self._stats: dict[str, dict] = {"_bad": _new_stats()}
         for name in bodies or ():
@@ -317,6 +320,26 @@ class PoseSource:
         self._check_name(name)
         with self._lock:
             return self._latest.get(name)
+
+    def since(self, name: str, seq: int) -> list[PoseSample]:
+        """The accepted samples of rigid body ``name`` after the one numbered ``seq`` (its ``seq``; 0: from the
+        first), oldest first: the last :data:`HISTORY` of them at most. A reader that lags behind the stream (the
+        relay's ticks taken late after a stall of its process) takes every pose it missed, at its arrival.
+
+        Raises:
+            AmheError: ``name`` is not one of the ``bodies`` this source was opened for.
+        """
+        self._check_name(name)
+        with self._lock:
+            kept = self._history.get(name)
+            if not kept or kept[-1].seq <= seq:
+                return []
+            out = []
+            for sample in reversed(kept):
+                if sample.seq <= seq:
+                    break
+                out.append(sample)
+        return out[::-1]
 
     def age(self, name: str, now: float | None = None) -> float:
         """Seconds since the latest accepted sample of ``name`` arrived (its ``received``).
@@ -528,8 +551,10 @@ class PoseSource:
             st["accepted"] += 1
             pos.setflags(write=False)
             quat.setflags(write=False)
-            self._latest[name] = PoseSample(name=name, pos=pos, quat=quat, stamp=float(stamp),
-                                            received=float(received), seq=st["accepted"])
+            sample = PoseSample(name=name, pos=pos, quat=quat, stamp=float(stamp), received=float(received),
+                                seq=st["accepted"])
+            self._latest[name] = sample
+            self._history.setdefault(name, deque(maxlen=HISTORY)).append(sample)
 
 
 class UdpPoseSource(PoseSource):

@@ -38,6 +38,7 @@ from amhe_cli.plants.go1.latency import MocapLatency
 from amhe_cli.plants.go1.link import LowLevelLink
 from amhe_cli.plants.go1.protocol import LOCAL_PORT, ROBOT_ADDRESS
 from amhe_cli.plants.go1.relay import Relay
+from amhe_cli.plants.go1.relay_process import RelayProcess
 from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
 from amhe_cli.plants.go1.state import StateEstimator
 
@@ -65,6 +66,9 @@ class Go1Settings:
         safety: :class:`~amhe_cli.plants.go1.safety.SafetySettings`.
         start_timeout: how long to wait for the state stream and the poses [s].
         planner_period: expected planner cycle [s] (stale-plan watchdog).
+        relay_process: run the relay in a process of its own
+            (:class:`~amhe_cli.plants.go1.relay_process.RelayProcess`), so that nothing this process does (a
+            stall of its interpreter lock) stops the robot's commands; False: a thread of this process.
         mocap_latency: how late poses arrive [s], taken off their arrival time in the MHE's window and
             the recording (not in the planner's state, which carries poses forward from their arrival:
             docs/evaluation.md#late-motion-capture); None: measured against the IMU as the run goes
@@ -83,6 +87,17 @@ class Go1Settings:
     start_timeout: float = 3.0
     planner_period: float = 0.3
     mocap_latency: float | None = None
+    relay_process: bool = True
+
+
+def relay_process_setting(value) -> bool:
+    """The run config's ``relay_process`` (true: the relay in a process of its own, the default; false: a thread).
+
+    Raises:
+        AmheError: not true or false."""
+    if isinstance(value, bool):
+        return value
+    raise AmheError(f"relay_process: expected true or false, got {value!r}")
 
 
 class Go1Plant(Plant):
@@ -120,10 +135,15 @@ class Go1Plant(Plant):
         self.pose_latency = s.mocap_latency or 0.0  # [s]: what the MHE's window and the recording take off
         self.latency = MocapLatency() if s.mocap_latency is None else None
         self._latency_said: float | None = None
-        self._latency_seq = None
+        self._seen = {"base": 0, "box": 0}  # the last pose taken in, per body (its seq)
+        self._last_pose = {"base": None, "box": None}
         self.safety = SafetyLayer(s.safety)
-        self.relay = Relay(self.link, self.safety, s.kp, s.kd, dry_run=not s.arm, planner_period=s.planner_period,
-                           on_tick=self._on_tick)
+        if s.relay_process and link is None:  # a link of its own: its socket can go to the relay's process
+            self.relay = RelayProcess(self.link, s.safety, s.kp, s.kd, dry_run=not s.arm,
+                                      planner_period=s.planner_period, on_tick=self._on_tick)
+        else:
+            self.relay = Relay(self.link, self.safety, s.kp, s.kd, dry_run=not s.arm,
+                               planner_period=s.planner_period, on_tick=self._on_tick)
         self._lock = threading.Lock()
         self._t0: float | None = None
         self._measured_at = 0.0
@@ -146,12 +166,12 @@ class Go1Plant(Plant):
                 or a trip during the ramp (the robot is damped, the link closed).
         """
         s = self.settings
-        self.relay.start()
         try:
+            self.relay.start()
             if not self.relay.streaming.wait(s.start_timeout):
                 raise PlantFailure(
                     f"no valid LowState from {s.robot[0]}:{s.robot[1]} within {s.start_timeout:g} s "
-                    f"({self.link.bad_packets} bad packets): is the robot on, in low-level mode "
+                    f"({self.relay.bad_packets} bad packets): is the robot on, in low-level mode "
                     "(L2+A, L2+A, L2+B, L1+L2+START), and this machine on its network?")
             try:
                 self.poses.wait((s.base_body, s.box_body), timeout=s.start_timeout)
@@ -169,29 +189,41 @@ class Go1Plant(Plant):
     # -- the relay thread's side ------------------------------------------------
     def _on_tick(self, now: float, state, q_sent, mode) -> None:
         s = self.settings
-        base, box = self.poses.latest(s.base_body), self.poses.latest(s.box_body)
-        fresh = all(p is not None and now - p.received <= s.safety.mocap_timeout for p in (base, box))
+        wall = time.monotonic()  # ``now`` is the tick's time: later than it where the ticks are taken late
+        latest = (self.poses.latest(s.base_body), self.poses.latest(s.box_body))
+        fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
         self.relay.set_mocap_ok(fresh)
+        # every pose that had arrived by this tick, in order: a tick taken late (the relay's process sends them
+        # on while this one stalls) sees the poses of its own time, as the relay's thread did
+        new = {key: [p for p in self.poses.since(name, self._seen[key]) if p.received <= now]
+               for key, name in (("base", s.base_body), ("box", s.box_body))}
         with self._lock:
             if state is not None:
                 self.estimator.update_state(now, state)
-            self.estimator.update_poses(base, box)
-            if self.latency is not None:  # the ramp to the stand moves the trunk too: its timing counts
-                if state is not None:
-                    self.latency.add_imu(now, state.quaternion)
-                if base is not None and base.seq != self._latency_seq:
+            for base in new["base"]:
+                self.estimator.update_poses(base, None)
+                if self.latency is not None:  # the ramp to the stand moves the trunk too: its timing counts
                     self.latency.add_mocap(base.received, base.quat)
-                    self._latency_seq = base.seq
-            if self._t0 is None or now < self._t0:
+            for box in new["box"]:
+                self.estimator.update_poses(None, box)
+            if self.latency is not None and state is not None:
+                self.latency.add_imu(now, state.quaternion)
+            started = self._t0 is not None and now >= self._t0
+            for key, got in new.items():
+                raw = self._raw[key]
+                if started and not raw and self._last_pose[key] is not None:
+                    got = [self._last_pose[key], *got]  # the pose in force at the start: the window opens on it
+                if got:
+                    self._seen[key] = got[-1].seq
+                    self._last_pose[key] = got[-1]
+                if started:
+                    raw.extend((p.received - self._t0, p.pos, p.quat, p.seq) for p in got)
+            if not started:
                 return  # the start waits for fresh poses itself: its ticks before them are not the run's news
             if fresh != self._mocap_was_ok:
                 self._messages.append("motion capture stale: holding the stand" if not fresh
                                       else "motion capture fresh again")
                 self._mocap_was_ok = fresh
-            for key, sample in (("base", base), ("box", box)):
-                raw = self._raw[key]
-                if sample is not None and (not raw or raw[-1][3] != sample.seq):
-                    raw.append((sample.received - self._t0, sample.pos, sample.quat, sample.seq))
             if q_sent is not None:  # armed: what went out (a dry run sends none: what it would have)
                 self._ctrl = np.asarray(q_sent, dtype=float)
             elif self.relay.would_send:

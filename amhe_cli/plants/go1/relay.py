@@ -20,18 +20,21 @@ a silent link, or :meth:`Relay.damp` from outside (an exception in the planner
 or the MHE, Ctrl-C); :meth:`Relay.stop` sends a burst of damping packets
 before it returns, so a lost datagram cannot leave a servo command active.
 
-Why a thread and not a process: the planner's rollouts run in MuJoCo's C
-thread pool without the GIL, and with the interpreter's switch interval cut to
-0.5 ms the relay thread gets the GIL within a fraction of its period; a process
-would need shared memory for plans and states for no measured gain.
-Measured against the emulator on a 2-core machine with the planner busy on
-both cores (``benchmarks/relay_jitter.py``): period median 2.00 ms, p99
-2.9 ms, max 9.6 ms; each period's work ≈ 0.5 ms wall (mostly waiting for the
-GIL around the socket calls). The thread also asks for real-time scheduling
-(:func:`raise_thread_priority`) where the OS allows it, and the heap the
-process built before the relay started is frozen out of the garbage
-collector's full passes while it runs (:meth:`Relay.start`): a full pass stops
-every thread, the relay's included (48–54 ms mid-run in a T3 client before).
+The relay is a thread here; :class:`~amhe_cli.plants.go1.plant.Go1Plant` runs it
+in a process of its own (:mod:`~amhe_cli.plants.go1.relay_process`). A thread
+shares the interpreter lock: the planner's rollouts run in MuJoCo's C thread
+pool without it, and with the interpreter's switch interval cut to 0.5 ms the
+relay thread gets it within a fraction of its period — measured against the
+emulator on a 2-core machine with the planner busy on both cores
+(``benchmarks/relay_jitter.py``): period median 2.00 ms, p99 2.9 ms, max
+9.6 ms. But anything that holds the lock longer holds the commands: emulated
+GPU clients stalled for 60–310 ms (the GPU backend loading at the start, once
+0.3 s at 45 s: the robot kept one command's joint targets mid-stride and fell),
+which a process of its own does not see. The thread also asks for real-time
+scheduling (:func:`raise_thread_priority`) where the OS allows it, and the heap
+built before the relay started is frozen out of the garbage collector's full
+passes while it runs (:meth:`Relay.start`): a full pass stops every thread of
+its process (48–54 ms mid-run in a T3 client before).
 """
 
 from __future__ import annotations
@@ -131,6 +134,7 @@ class Relay:
         self.state: LowState | None = None
         self.state_time = -np.inf
         self._bad_at_state = 0  # the link's invalid-packet count at the last valid state
+        self._streaming = False
         self.streaming = threading.Event()
         self.ready = threading.Event()
         self.failed = threading.Event()
@@ -148,6 +152,11 @@ class Relay:
         self._hold_q: np.ndarray | None = None
         self._t0 = 0.0
         self._switch = sys.getswitchinterval()
+
+    @property
+    def bad_packets(self) -> int:
+        """Invalid packets the link dropped so far (0 for a link that does not count them)."""
+        return int(getattr(self.link, "bad_packets", 0))
 
     # -- the caller's side ----------------------------------------------------
     def start(self) -> None:
@@ -304,7 +313,9 @@ class Relay:
             if state is not None:
                 self.state, self.state_time = state, received
                 self._bad_at_state = getattr(self.link, "bad_packets", 0)
-                self.streaming.set()
+                if not self._streaming:  # once: a shared (process) flag costs a lock each time
+                    self._streaming = True
+                    self.streaming.set()
                 if self.phase == "wait":
                     if self.dry_run:
                         self._set_phase("dry", "state streaming; dry run: damping packets only")
