@@ -195,3 +195,18 @@ def test_the_run_config_s_relay_process_takes_true_or_false_only():
     assert relay_process_setting(True) is True and relay_process_setting(False) is False
     with pytest.raises(AmheError, match="relay_process: expected true or false, got 'yes'"):
         relay_process_setting("yes")
+
+
+def test_a_state_crosses_to_the_planners_process_as_the_fields_it_reads():
+    from amhe_cli.plants.go1.protocol import LowState
+    from amhe_cli.plants.go1.relay_process import StateSample
+    rng = np.random.default_rng(0)
+    state = LowState.zeros()
+    for name, n in StateSample.FIELDS:
+        getattr(state, name)[:] = rng.normal(size=n)
+    got = StateSample.unpack(StateSample.pack(LowState.decode(state.encode())))
+    wire = LowState.decode(state.encode())  # what the relay's process holds after the wire
+    for name, _ in StateSample.FIELDS:
+        assert np.array_equal(getattr(got, name), np.asarray(getattr(wire, name), dtype=float)), name
+    with pytest.raises(ValueError, match="holds 53 numbers, got 52"):
+        StateSample.unpack(np.zeros(52).tobytes())

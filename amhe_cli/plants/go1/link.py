@@ -81,7 +81,6 @@ class LowLevelLink:
         bad_packets: packets dropped (wrong length, header or CRC, or from another address).
         last_error: why the latest packet was dropped (or the latest receive error), else None.
         last_state_time: ``time.monotonic()`` [s] when the newest valid state was read, else None.
-        last_packet: the newest valid LowState datagram as received (bytes), else None.
 
     Raises:
         LinkError (an AmheError): the robot host cannot be resolved, a port is out of range,
@@ -106,7 +105,6 @@ class LowLevelLink:
         self.bad_packets = 0
         self.last_error: str | None = None
         self.last_state_time: float | None = None
-        self.last_packet: bytes | None = None
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._sock.bind((bind_host, local_port))
@@ -209,7 +207,6 @@ class LowLevelLink:
             return None
         self.received += len(valid)
         self.last_state_time = time.monotonic()
-        self.last_packet = valid[-1]
         return LowState.decode(valid[-1])
 
     def close(self) -> None:

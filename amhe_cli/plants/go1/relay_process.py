@@ -19,7 +19,7 @@ What crosses between the processes (``multiprocessing`` queues, neither side
 ever blocks on the other): plans, the motion capture's freshness, damp and
 stop go to the child; every tick ``(t, state, q_sent, mode, run servo, the dry
 run's target, work time)`` and the relay's messages come back to a thread here
-that calls ``on_tick`` in order (the state as its datagram, decoded here) (late after a stall, never lost, each with the
+that calls ``on_tick`` in order (the state as the fields this process reads, :class:`StateSample`) (late after a stall, never lost, each with the
 child's own ``time.monotonic()``, a clock both processes share). The phase, the
 trip's reason and the ready/streaming/failed flags are shared memory, so they
 are current even while this process lags.
@@ -31,6 +31,7 @@ import multiprocessing as mp
 import os
 import queue
 import signal
+import sys
 import threading
 import time
 from collections import deque
@@ -38,8 +39,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from amhe_cli.plants.go1.protocol import LowCmd, LowState
-from amhe_cli.plants.go1.relay import HISTORY, PHASES, Relay
+from amhe_cli.plants.go1.protocol import LowCmd
+from amhe_cli.plants.go1.relay import HISTORY, PHASES, SWITCH_INTERVAL, Relay
 from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
 
 #: How long the child may take to start (a spawned interpreter imports numpy and MuJoCo) [s].
@@ -50,6 +51,35 @@ CHECK_EVERY = 0.02
 DAMP_WAIT = 0.5
 #: Bytes kept for the trip's reason in shared memory.
 REASON_BYTES = 512
+
+
+class StateSample:
+    """What the planner's process reads of a :class:`~amhe_cli.plants.go1.protocol.LowState` (the attributes of
+    :data:`FIELDS`, float64 arrays of those sizes), sent across as one array's bytes.
+
+    Raises:
+        ValueError (from :meth:`unpack`): bytes not of the :data:`FIELDS`' total size."""
+
+    FIELDS = (("quaternion", 4), ("gyroscope", 3), ("accelerometer", 3), ("rpy", 3), ("q", 12), ("dq", 12),
+              ("tau_est", 12), ("foot_force", 4))
+    __slots__ = tuple(name for name, _ in FIELDS)
+
+    @classmethod
+    def pack(cls, state) -> bytes:
+        """The fields of ``state`` (a LowState) as bytes."""
+        return np.concatenate([np.asarray(getattr(state, name), dtype=float) for name, _ in cls.FIELDS]).tobytes()
+
+    @classmethod
+    def unpack(cls, data: bytes) -> "StateSample":
+        """A sample from :meth:`pack`'s bytes (read-only arrays over them)."""
+        values = np.frombuffer(data, dtype=float)
+        if values.size != sum(n for _, n in cls.FIELDS):
+            raise ValueError(f"a state sample holds {sum(n for _, n in cls.FIELDS)} numbers, got {values.size}")
+        out, k = cls.__new__(cls), 0
+        for name, n in cls.FIELDS:
+            setattr(out, name, values[k:k + n])
+            k += n
+        return out
 
 
 class _SharedFailed:
@@ -85,10 +115,10 @@ def _child(link, settings: SafetySettings, kp: float, kd: float, dry_run: bool, 
         flags["phase"].value = PHASES.index(relay.phase)
         flags["bad_packets"].value = getattr(link, "bad_packets", 0)
         would = relay.would_send[-1][1] if relay.dry_run and relay.would_send else None
-        # the state as its datagram (807 bytes): a decoded LowState pickles at several times the cost
-        packet = getattr(link, "last_packet", None) if state is not None else None
-        # (arrays as their bytes, too: a pickled ndarray costs tens of microseconds on each side)
-        outbox.put(("tick", now, packet, None if q_sent is None else np.asarray(q_sent, float).tobytes(), int(mode),
+        # arrays as their bytes: a pickled LowState or ndarray costs tens of microseconds on each side, and
+        # decoding the state's datagram again on the planner's side 74 µs
+        outbox.put(("tick", now, None if state is None else StateSample.pack(state),
+                    None if q_sent is None else np.asarray(q_sent, float).tobytes(), int(mode),
                     relay.run_servo, None if would is None else np.asarray(would, float).tobytes(),
                     relay.busy[-1] if relay.busy else 0.0))
 
@@ -144,7 +174,7 @@ class RelayProcess:
         kp, kd, dry_run, planner_period: as :class:`Relay`.
         on_tick: called here, from a thread of its own, for every tick of the child, in order, with
             ``(t, state or None, q_sent or None, mode)`` as :class:`Relay` calls it (``t`` the child's
-            ``time.monotonic()``).
+            ``time.monotonic()``, ``state`` a :class:`StateSample`).
     Attributes:
         phase, reason, run_servo, state, state_time, would_send, periods, busy, scheduling, messages,
         streaming, ready, failed, bad_packets: as :class:`Relay`'s (``phase``, ``reason``, ``bad_packets``,
@@ -182,6 +212,8 @@ class RelayProcess:
         self._mocap_ok = True
         self._last_t = None
         self._stopped = threading.Event()
+        self._switch = sys.getswitchinterval()
+        self._ended = False  # stop() ran
 
     # -- shared state -------------------------------------------------------------
     @property
@@ -226,6 +258,9 @@ class RelayProcess:
             raise PlantFailure(f"the relay process did not start within {START_TIMEOUT:g} s" +
                                (f" (it ended with exit code {code})" if code is not None else ""))
         self.pid = first[1]
+        # this process's threads that take the ticks and the poses wait for the interpreter lock no longer than
+        # the relay's thread did here (the planner's Python holds it for the default 5 ms otherwise)
+        sys.setswitchinterval(SWITCH_INTERVAL)
         self._receiver = threading.Thread(target=self._receive, name="amhe-relay-ticks", daemon=True)
         self._receiver.start()
 
@@ -272,8 +307,9 @@ class RelayProcess:
 
     def stop(self) -> None:
         """End the child relay: a burst of damping packets, then it exits. Safe to call twice."""
-        if self._proc is None or self._stopped.is_set():
+        if self._proc is None or self._ended:
             return
+        self._ended = True
         if self._proc.is_alive():
             self._inbox.put(("stop",))
             self._proc.join(timeout=2.0)
@@ -284,6 +320,7 @@ class RelayProcess:
         if self._receiver is not None:
             self._stopped.wait(1.0)
         self._stopped.set()
+        sys.setswitchinterval(self._switch)
         self._inbox.cancel_join_thread()  # a child that is gone reads nothing: never wait on it at exit
         self._inbox.close()
 
@@ -315,8 +352,8 @@ class RelayProcess:
                 break
             kind = item[0]
             if kind == "tick":
-                _, now, packet, q_sent, mode, run_servo, would, busy = item
-                state = None if packet is None else LowState.decode(packet)
+                _, now, packed, q_sent, mode, run_servo, would, busy = item
+                state = None if packed is None else StateSample.unpack(packed)
                 q_sent = None if q_sent is None else np.frombuffer(q_sent)
                 would = None if would is None else np.frombuffer(would)
                 if self._last_t is not None:
