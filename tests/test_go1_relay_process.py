@@ -210,3 +210,44 @@ def test_a_state_crosses_to_the_planners_process_as_the_fields_it_reads():
         assert np.array_equal(getattr(got, name), np.asarray(getattr(wire, name), dtype=float)), name
     with pytest.raises(ValueError, match="holds 53 numbers, got 52"):
         StateSample.unpack(np.zeros(52).tobytes())
+
+
+def test_a_tick_taken_late_leaves_the_motion_capture_verdict_until_one_on_time_or_a_second_passed():
+    """After a stall of the planner's process its pose thread has not yet read the poses that queued meanwhile:
+    the ticks it catches up on (taken more than LATE_TICK after their time) do not judge the motion capture
+    stale; a tick on time does, and so does a late one once a second passed without a verdict."""
+    from amhe_cli.control.closed_loop import task_scene_config
+    from amhe_cli.control.tasks import get_task
+    from amhe_cli.model.scene import Scene
+    from amhe_cli.plants.go1.mocap import PoseSample
+    from amhe_cli.plants.go1.plant import JUDGE_WITHIN, LATE_TICK, Go1Plant, Go1Settings
+
+    class Poses:  # the last pose arrived 0.3 s ago: the motion capture's stream, or this process, stopped
+        def latest(self, name):
+            t = time.monotonic() - 0.3
+            return PoseSample(name, np.zeros(3), np.array([1.0, 0, 0, 0]), t, t, 1)
+
+        def since(self, name, seq):
+            return []
+
+    class Relay:
+        dry_run, run_servo, would_send = True, False, []
+
+        def __init__(self):
+            self.verdicts = []
+
+        def set_mocap_ok(self, ok):
+            self.verdicts.append(ok)
+
+    plant = Go1Plant(Scene(task_scene_config(get_task("t1"), 0.002, 100.0, 4.0)), Go1Settings(mocap_latency=0.0),
+                     link=object(), poses=Poses())
+    plant.relay = relay = Relay()
+    plant._on_tick(time.monotonic() - 0.01, None, None, 0)  # on time: judged stale
+    assert relay.verdicts == [False]
+    plant._fresh = True  # as if fresh when the stall began
+    plant._judged = time.monotonic()
+    plant._on_tick(time.monotonic() - 5 * LATE_TICK, None, None, 0)  # caught up late: no verdict
+    assert relay.verdicts == [False] and plant._fresh
+    plant._judged -= JUDGE_WITHIN + 0.01
+    plant._on_tick(time.monotonic() - 5 * LATE_TICK, None, None, 0)  # late, but a second without a verdict
+    assert relay.verdicts == [False, False]
