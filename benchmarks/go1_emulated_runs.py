@@ -31,7 +31,7 @@ there to the planner (:func:`attribution_latency`)), then one row per (task, mod
   falls (the client's fall test or a safety layer's tilt trip), fall-prevention
   recoveries, other safety trips, e_g mean ± std [m], t_exec mean ± std [s] (to the
   goal, else the run's length), the planner's replanning rate (median over runs, Hz), the robot's longest
-  wait for a command (``cmd gap``, the worst run's [ms]);
+  wait for a command (``gap ms``, the worst run's);
 * the online MHE's error after each change of the world (T3's mass switch, T4's
   friction step; the emulator prints when each fires and the client's recording
   holds its own start on the same monotonic clock): from 3 s after the change to

@@ -4,6 +4,7 @@ it streams a standing LowState every 2 ms and notes when each command came and i
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -76,6 +77,26 @@ def gil_hog(seconds: float) -> None:
     sum(range(int(1.5 * seconds / per)))
 
 
+@contextlib.contextmanager
+def standing(robot: Robot, kind: str = "process"):
+    """A relay (``"process"`` or ``"thread"``) on ``robot``, ramped to the stand and following a 10 s plan of it;
+    stopped and its link closed after."""
+    link = LowLevelLink(("127.0.0.1", robot.port), 0)
+    if kind == "process":
+        relay = RelayProcess(link, settings(), 100, 4, planner_period=5.0)
+    else:
+        relay = Relay(link, SafetyLayer(settings()), 100, 4, planner_period=5.0)
+    relay.start()
+    try:
+        assert relay.wait_ready(10.0)
+        relay.set_plan(np.tile(STAND_JOINTS, (1000, 1)), 0.01, time.monotonic())
+        time.sleep(0.2)
+        yield relay
+    finally:
+        relay.stop()
+        link.close()
+
+
 def longest_gap(commands, since: float, until: float) -> float:
     t = np.array([c[0] for c in commands if since <= c[0] <= until])
     return float(np.diff(t).max())
@@ -84,24 +105,12 @@ def longest_gap(commands, since: float, until: float) -> float:
 @pytest.mark.parametrize("kind", ["process", "thread"])
 def test_a_stall_of_the_planners_process_leaves_the_robot_s_commands_coming_only_from_a_relay_process(kind):
     robot = Robot()
-    link = LowLevelLink(("127.0.0.1", robot.port), 0)
-    if kind == "process":
-        relay = RelayProcess(link, settings(), 100, 4, planner_period=0.5)
-    else:
-        relay = Relay(link, SafetyLayer(settings()), 100, 4, planner_period=0.5)
-    relay.start()
-    try:
-        assert relay.wait_ready(10.0)
-        relay.set_plan(np.tile(STAND_JOINTS, (300, 1)), 0.01, time.monotonic())
-        time.sleep(0.2)
+    with standing(robot, kind) as relay:
         t0 = time.monotonic()
         gil_hog(0.4)
         t1 = time.monotonic()
         time.sleep(0.2)
         assert relay.phase == "run"
-    finally:
-        relay.stop()
-        link.close()
     commands = robot.commands()
     assert t1 - t0 > 0.3  # the stall came
     gap = longest_gap(commands, t0 - 0.05, t1 + 0.1)
@@ -146,34 +155,19 @@ def test_the_relay_process_damps_the_robot_when_the_planners_process_dies():
 
 def test_a_relay_process_that_dies_is_damped_from_the_planners_side():
     robot = Robot()
-    link = LowLevelLink(("127.0.0.1", robot.port), 0)
-    relay = RelayProcess(link, settings(), 100, 4, planner_period=5.0)
-    relay.start()
-    try:
-        assert relay.wait_ready(10.0)
-        relay.set_plan(np.tile(STAND_JOINTS, (1000, 1)), 0.01, time.monotonic())
-        time.sleep(0.2)
+    with standing(robot) as relay:
         killed = time.monotonic()
         os.kill(relay.pid, signal.SIGKILL)
         assert relay.failed.wait(2.0)
         assert "relay process ended" in relay.reason and "-9" in relay.reason
         assert relay.phase == "damp"
-    finally:
-        relay.stop()
-        link.close()
     after = [m for t, m in robot.commands() if t > killed + 0.01]  # (what the child sent as it was killed)
     assert after and all(m == MODE_DAMPING for m in after)  # the burst this process sent on its own socket
 
 
 def test_damp_from_the_planners_side_returns_once_the_relay_process_damps_and_keeps_the_first_reason():
     robot = Robot()
-    link = LowLevelLink(("127.0.0.1", robot.port), 0)
-    relay = RelayProcess(link, settings(), 100, 4, planner_period=5.0)
-    relay.start()
-    try:
-        assert relay.wait_ready(10.0)
-        relay.set_plan(np.tile(STAND_JOINTS, (1000, 1)), 0.01, time.monotonic())
-        time.sleep(0.2)
+    with standing(robot) as relay:
         asked = time.monotonic()
         relay.damp("interrupted (Ctrl-C)")
         assert relay.failed.is_set() and relay.phase == "damp"
@@ -181,9 +175,6 @@ def test_damp_from_the_planners_side_returns_once_the_relay_process_damps_and_ke
         assert relay.reason == "interrupted (Ctrl-C)"
         returned = time.monotonic()
         time.sleep(0.1)
-    finally:
-        relay.stop()
-        link.close()
     commands = robot.commands()  # (noted as the robot reads them, a period or two after they were sent)
     assert all(m == MODE_DAMPING for t, m in commands if t > returned + 0.02)
     assert any(m == MODE_SERVO for t, m in commands if t < asked)
@@ -251,3 +242,15 @@ def test_a_tick_taken_late_leaves_the_motion_capture_verdict_until_one_on_time_o
     plant._judged -= JUDGE_WITHIN + 0.01
     plant._on_tick(time.monotonic() - 5 * LATE_TICK, None, None, 0)  # late, but a second without a verdict
     assert relay.verdicts == [False, False]
+
+
+def test_the_targets_the_relay_process_clamps_are_counted_on_the_planners_side():
+    """The live view's ``clamped`` (``Go1Plant.safety_status``) counts the child's safety layer, not a copy here."""
+    from amhe_cli.plants.go1.safety import SDK_JOINT_UPPER
+    robot = Robot()
+    with standing(robot) as relay:
+        assert relay.clamped == 0
+        relay.set_plan(np.tile(SDK_JOINT_UPPER + 0.5, (1000, 1)), 0.01, time.monotonic())
+        time.sleep(0.1)
+        assert relay.clamped > 0
+    robot.commands()

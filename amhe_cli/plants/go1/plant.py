@@ -140,14 +140,12 @@ class Go1Plant(Plant):
         self.pose_latency = s.mocap_latency or 0.0  # [s]: what the MHE's window and the recording take off
         self.latency = MocapLatency() if s.mocap_latency is None else None
         self._latency_said: float | None = None
-        self._seen = {"base": 0, "box": 0}  # the last pose taken in, per body (its seq)
-        self._last_pose = {"base": None, "box": None}
-        self.safety = SafetyLayer(s.safety)
+        self._last_pose = {"base": None, "box": None}  # the last pose taken in, per body
         if s.relay_process and link is None:  # a link of its own: its socket can go to the relay's process
             self.relay = RelayProcess(self.link, s.safety, s.kp, s.kd, dry_run=not s.arm,
                                       planner_period=s.planner_period, on_tick=self._on_tick)
         else:
-            self.relay = Relay(self.link, self.safety, s.kp, s.kd, dry_run=not s.arm,
+            self.relay = Relay(self.link, SafetyLayer(s.safety), s.kp, s.kd, dry_run=not s.arm,
                                planner_period=s.planner_period, on_tick=self._on_tick)
         self._lock = threading.Lock()
         self._t0: float | None = None
@@ -208,7 +206,8 @@ class Go1Plant(Plant):
         fresh = self._fresh
         # every pose that had arrived by this tick, in order: a tick taken late (the relay's process sends them
         # on while this one stalls) sees the poses of its own time, as the relay's thread did
-        new = {key: [p for p in self.poses.since(name, self._seen[key]) if p.received <= now]
+        seen = {key: 0 if p is None else p.seq for key, p in self._last_pose.items()}
+        new = {key: [p for p in self.poses.since(name, seen[key]) if p.received <= now]
                for key, name in (("base", s.base_body), ("box", s.box_body))}
         with self._lock:
             if state is not None:
@@ -227,7 +226,6 @@ class Go1Plant(Plant):
                 if started and not raw and self._last_pose[key] is not None:
                     got = [self._last_pose[key], *got]  # the pose in force at the start: the window opens on it
                 if got:
-                    self._seen[key] = got[-1].seq
                     self._last_pose[key] = got[-1]
                 if started:
                     raw.extend((p.received - self._t0, p.pos, p.quat, p.seq) for p in got)
@@ -307,7 +305,7 @@ class Go1Plant(Plant):
         phase = self.relay.phase
         return {"ok": float(phase not in ("hold", "stand", "damp")), "hold": float(phase == "hold"),
                 "stand": float(phase == "stand"), "damp": float(phase == "damp"),
-                "clamped": float(self.safety.clamped)}
+                "clamped": float(self.relay.clamped)}
 
     def take_messages(self) -> list[str]:
         """Relay phase changes, pose warnings and mocap freshness changes since the last call."""

@@ -86,6 +86,18 @@ def raise_thread_priority(priority: int = RT_PRIORITY) -> str:
         return "default scheduler (no right to raise the priority)"
 
 
+def damping_burst(link, settings) -> None:
+    """Send ``settings.damping_burst`` damping packets (``settings.damping_kd``) 0.5 ms apart on ``link``, so that a
+    lost datagram cannot leave a servo command active; a link that fails to send ends the burst (it cannot damp)."""
+    cmd = LowCmd.damping(kd=settings.damping_kd)
+    for _ in range(settings.damping_burst):
+        try:
+            link.send(cmd)
+        except Exception:  # noqa: BLE001 - a dead link cannot be damped; nothing else to do
+            break
+        time.sleep(0.0005)
+
+
 class Relay:
     """The 2 ms command thread between the planner and the robot link.
 
@@ -154,6 +166,11 @@ class Relay:
         self._switch = sys.getswitchinterval()
 
     @property
+    def clamped(self) -> int:
+        """Targets the safety layer clamped so far."""
+        return int(self.safety.clamped)
+
+    @property
     def bad_packets(self) -> int:
         """Invalid packets the link dropped so far (0 for a link that does not count them)."""
         return int(getattr(self.link, "bad_packets", 0))
@@ -220,13 +237,7 @@ class Relay:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=1.0)
-        cmd = LowCmd.damping(kd=self.safety.settings.damping_kd)
-        for _ in range(self.safety.settings.damping_burst):
-            try:
-                self.link.send(cmd)
-            except Exception:  # noqa: BLE001 - a dead link cannot be damped; nothing else to do
-                break
-            time.sleep(0.0005)
+        damping_burst(self.link, self.safety.settings)
         sys.setswitchinterval(self._switch)
         gc.unfreeze()
 

@@ -19,8 +19,9 @@ What crosses between the processes (``multiprocessing`` queues, neither side
 ever blocks on the other): plans, the motion capture's freshness, damp and
 stop go to the child; every tick ``(t, state, q_sent, mode, run servo, the dry
 run's target, work time)`` and the relay's messages come back to a thread here
-that calls ``on_tick`` in order (the state as the fields this process reads, :class:`StateSample`) (late after a stall, never lost, each with the
-child's own ``time.monotonic()``, a clock both processes share). The phase, the
+that calls ``on_tick`` in order: late after a stall, never lost, each with the
+child's own ``time.monotonic()`` (a clock both processes share), the state as
+the fields this process reads (:class:`StateSample`). The phase, the
 trip's reason and the ready/streaming/failed flags are shared memory, so they
 are current even while this process lags.
 """
@@ -39,8 +40,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from amhe_cli.plants.go1.protocol import LowCmd
-from amhe_cli.plants.go1.relay import HISTORY, PHASES, SWITCH_INTERVAL, Relay
+from amhe_cli.plants.go1.relay import HISTORY, PHASES, SWITCH_INTERVAL, Relay, damping_burst
 from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
 
 #: How long the child may take to start (a spawned interpreter imports numpy and MuJoCo) [s].
@@ -114,6 +114,7 @@ def _child(link, settings: SafetySettings, kp: float, kd: float, dry_run: bool, 
     def tick(now, state, q_sent, mode) -> None:
         flags["phase"].value = PHASES.index(relay.phase)
         flags["bad_packets"].value = getattr(link, "bad_packets", 0)
+        flags["clamped"].value = relay.clamped
         would = relay.would_send[-1][1] if relay.dry_run and relay.would_send else None
         # arrays as their bytes: a pickled LowState or ndarray costs tens of microseconds on each side, and
         # decoding the state's datagram again on the planner's side 74 µs
@@ -155,7 +156,7 @@ def _child(link, settings: SafetySettings, kp: float, kd: float, dry_run: bool, 
         flags["phase"].value = PHASES.index("damp")
         for text in relay.take_messages():
             outbox.put(("message", text))
-        outbox.put(("stopped", relay.scheduling, getattr(link, "bad_packets", 0), why))
+        outbox.put(("stopped", relay.scheduling, why))
         link.close()
         # the queue's last items go out at exit; a reader that is gone must not keep this process (and the
         # robot's port) alive: a second at most
@@ -176,9 +177,11 @@ class RelayProcess:
             ``(t, state or None, q_sent or None, mode)`` as :class:`Relay` calls it (``t`` the child's
             ``time.monotonic()``, ``state`` a :class:`StateSample`).
     Attributes:
-        phase, reason, run_servo, state, state_time, would_send, periods, busy, scheduling, messages,
-        streaming, ready, failed, bad_packets: as :class:`Relay`'s (``phase``, ``reason``, ``bad_packets``,
-        ``streaming``, ``ready`` and ``failed`` live in shared memory; the others as the ticks arrive here).
+        phase, reason, run_servo, state (a :class:`StateSample`), state_time, would_send, periods, busy,
+        scheduling, messages,
+        streaming, ready, failed, bad_packets, clamped: as :class:`Relay`'s (``phase``, ``reason``,
+        ``bad_packets``, ``clamped``, ``streaming``, ``ready`` and ``failed`` live in shared memory; the others as
+        the ticks arrive here).
         pid: the child's process id once started.
     Raises:
         PlantFailure (from :meth:`start`): the child did not start within :data:`START_TIMEOUT`.
@@ -196,6 +199,7 @@ class RelayProcess:
         self._reason = ctx.Array("c", REASON_BYTES, lock=False)
         self._phase = ctx.Value("i", PHASES.index("wait"), lock=False)
         self._bad_packets = ctx.Value("q", 0, lock=False)
+        self._clamped = ctx.Value("q", 0, lock=False)
         self._inbox, self._outbox = ctx.Queue(), ctx.Queue()
         self.run_servo = False
         self.state = None
@@ -228,6 +232,11 @@ class RelayProcess:
         return text or None
 
     @property
+    def clamped(self) -> int:
+        """Targets the child's safety layer clamped so far."""
+        return int(self._clamped.value)
+
+    @property
     def bad_packets(self) -> int:
         """Invalid packets the child's link dropped so far."""
         return int(self._bad_packets.value)
@@ -242,7 +251,7 @@ class RelayProcess:
         """
         from amhe_cli.plants.base import PlantFailure
         flags = {"streaming": self.streaming, "ready": self.ready, "failed": self.failed, "reason": self._reason,
-                 "phase": self._phase, "bad_packets": self._bad_packets}
+                 "phase": self._phase, "bad_packets": self._bad_packets, "clamped": self._clamped}
         self._proc = self._ctx.Process(
             target=_child, name="amhe-relay", daemon=True,
             args=(self.link, self.safety_settings, self.kp, self.kd, self.dry_run, self.planner_period,
@@ -330,13 +339,7 @@ class RelayProcess:
         if not self._reason.value:
             self._reason.value = str(reason).encode()[:REASON_BYTES - 1]
         self._phase.value = PHASES.index("damp")
-        cmd = LowCmd.damping(kd=self.safety_settings.damping_kd)
-        for _ in range(self.safety_settings.damping_burst):
-            try:
-                self.link.send(cmd)
-            except Exception:  # noqa: BLE001 - a dead link cannot be damped; nothing else to do
-                break
-            time.sleep(0.0005)
+        damping_burst(self.link, self.safety_settings)
         self.failed.set()
 
     def _receive(self) -> None:
@@ -375,9 +378,9 @@ class RelayProcess:
                     self.messages.append(item[1])
             elif kind == "stopped":
                 self.scheduling = item[1]
-                if item[3]:
+                if item[2]:
                     with self._lock:
-                        self.messages.append(item[3])
+                        self.messages.append(item[2])
                 break
         if not self.failed.is_set() and self._proc is not None and not self._proc.is_alive() \
                 and self._proc.exitcode not in (0, None):
