@@ -21,7 +21,8 @@ fall-reflex recovery,
 ``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``) and
 ``mhe_decision_batches`` where their GPU backend spent its time (batches, steps, fields, read-back [s]),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
-``mhe_failed`` its updates that raised; each ``mhe`` segment after a change holds ``within_after_s``, the
+``mhe_failed`` its updates that raised, ``stalls`` [t, s] of each stall of the client's process past 0.15 s (its
+threads' stacks then in the recording's ``.stalls.txt``, gathered into ``--keep``'s ``stalls.txt``); each ``mhe`` segment after a change holds ``within_after_s``, the
 seconds after the change from which every estimate held both bounds, None where the last did not,
 ``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s,
 and ``attributed_s`` / ``to_planner_s``, the data after the change at its first attribution and the seconds from
@@ -395,11 +396,12 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
 
 def table(rows: list[dict], tasks, modes) -> None:
     """One row per (task, mode, ``--label``): S_R, falls, recoveries, trips, e_g, t_exec (to the goal, else the run's
-    length), replanning rate, the worst run's longest command gap at the robot, the medians of a run's
+    length), replanning rate, the worst run's longest command gap at the robot, the longest stall of a client's
+    process [s] (``amhe run``'s stall watch; ``-``: none past its 0.15 s, or rows from before it), the medians of a run's
     lost-box switches and deferred MHE updates (``-`` in rows from before they were counted), MHE after
     each change."""
     print(f"{'task':4} {'mode':9} {'runs':>4} {'S_R %':>6} {'falls':>5} {'recov':>5} {'trips':>5} "
-          f"{'e_g mean ± std [m]':>19} {'t_exec [s]':>12} {'Hz':>5} {'gap ms':>6} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
+          f"{'e_g mean ± std [m]':>19} {'t_exec [s]':>12} {'Hz':>5} {'gap ms':>6} {'stall':>5} {'lost':>4} {'defer':>5}  MHE from 3 s after each change: "
           "worst |mass err| / |μ err|, runs within 10 % / 0.05")
 
     def median(sel, key):
@@ -415,6 +417,7 @@ def table(rows: list[dict], tasks, modes) -> None:
             hz = [r["control_hz"] for r in sel if "control_hz" in r]
             gaps = [r["emulator"]["longest_command_gap_ms"] for r in sel
                     if "longest_command_gap_ms" in r.get("emulator", {})]
+            stalls = [d for r in sel for _, d in r.get("stalls", [])]
             segs = []
             ok = [[g for g in r["mhe"] if "error" not in g] for r in sel]
             nseg = max((len(g) for g in ok), default=0)
@@ -441,6 +444,7 @@ def table(rows: list[dict], tasks, modes) -> None:
                   f"{sum(r['trip'] and not r['fell'] for r in sel):5d} "
                   f"{np.nanmean(e_g):8.3f} ± {np.nanstd(e_g):6.3f} {np.nanmean(t_exec):5.1f} ± {np.nanstd(t_exec):4.1f} "
                   f"{np.median(hz) if hz else float('nan'):5.1f} {f'{max(gaps):.0f}' if gaps else '-':>6} "
+                  f"{f'{max(stalls):.2f}' if stalls else '-':>5} "
                   f"{median(sel, 'lost_box'):>4} {median(sel, 'mhe_deferred'):>5}  " + "; ".join(segs)
                   + (f"  [{label}]" if label else ""))
 
@@ -553,6 +557,18 @@ def main() -> None:
                         print(f"kept its last {args.keep_tail:g} s ({n} messages) as {os.path.basename(tail)}", flush=True)
                     except Exception as exc:  # noqa: BLE001 - the whole recording is kept either way
                         print(f"could not cut the last {args.keep_tail:g} s of {src}: {exc}", flush=True)
+        # every run's stalls of the client's process, with each thread's stack then (amhe run's STEM.stalls.txt)
+        traced = [r for r in rows if r.get("stalls")]
+        if traced:
+            with open(os.path.join(args.keep, "stalls.txt"), "a") as f:
+                for r in traced:
+                    src = os.path.join(args.out_dir, recording_name(r["task"], r["mode"], r["seed"], args.label))
+                    src = src[:-len(".mcap")] + ".stalls.txt"
+                    f.write(f"==== {os.path.basename(src)}: stalls [t, s] {r['stalls']}\n")
+                    if os.path.exists(src):
+                        f.write(open(src).read())
+            print(f"kept the stacks of {len(traced)} runs' stalls in {os.path.join(args.keep, 'stalls.txt')}",
+                  flush=True)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,9 @@
-"""Helpers the test modules share: the CLI run in-process, the one-line error check, a patient run config."""
+"""Helpers the test modules share: the CLI run in-process, the one-line error check, a patient run config, a
+hold of the interpreter lock."""
 
 from __future__ import annotations
+
+import time
 
 
 def amhe(capsys, *args):
@@ -35,3 +38,12 @@ def patient(tmp_path) -> list[str]:
     cfg = tmp_path / "patient.yaml"
     cfg.write_text("safety:\n  state_timeout: 0.5\n")
     return ["--config", str(cfg)]
+
+
+def gil_hog(seconds: float) -> None:
+    """Hold the interpreter lock for about ``seconds`` (or more on a busy machine): one C call that never lets
+    it go."""
+    t = time.perf_counter()
+    sum(range(1_000_000))
+    per = (time.perf_counter() - t) / 1_000_000
+    sum(range(int(1.5 * seconds / per)))

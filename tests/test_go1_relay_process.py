@@ -22,6 +22,7 @@ from amhe_cli.plants.go1.protocol import MODE_DAMPING, MODE_SERVO
 from amhe_cli.plants.go1.relay import Relay
 from amhe_cli.plants.go1.relay_process import RelayProcess
 from amhe_cli.plants.go1.safety import SafetyLayer, SafetySettings
+from helpers import gil_hog
 
 ROBOT = textwrap.dedent("""
     import json, select, socket, sys, time
@@ -66,15 +67,6 @@ class Robot:
 
 def settings():
     return SafetySettings(ramp_time=0.1)
-
-
-def gil_hog(seconds: float) -> None:
-    """Hold the interpreter lock for about ``seconds`` (or more on a busy machine): one C call that never lets
-    it go."""
-    t = time.perf_counter()
-    sum(range(1_000_000))
-    per = (time.perf_counter() - t) / 1_000_000
-    sum(range(int(1.5 * seconds / per)))
 
 
 @contextlib.contextmanager

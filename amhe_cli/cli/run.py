@@ -54,7 +54,7 @@ from amhe_cli.estimation.identify import IdentifySettings
                    "damping packets only and records what it would have sent.")
 @click.option("--out", default=None, type=click.Path(), help="MCAP to record (default: run_<task>_<mode>_s<seed>.mcap).")
 @click.option("--force", is_flag=True,
-              help="Overwrite existing output files (--out, its .truth.csv and .probe.belief.yaml, --plot).")
+              help="Overwrite existing output files (--out, its .truth.csv, .probe.belief.yaml and .stalls.txt, --plot).")
 @click.option("--plot", type=click.Path(), default=None, help="PNG: box path vs goal, speed tracking, estimates vs truth.")
 @click.option("--json", "as_json", is_flag=True,
               help="Print only {success, e_g, J, t_exec, rmse, fell, recoveries[, reason][, failure][, probe_belief]} "
@@ -92,11 +92,15 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
     out_path = Path(out or f"run_{task.name}_{mode}_s{seed}.mcap")
     stem = out_path.name.split(".mcap")[0]
     probing = target == "sim" and belief is None and mode != "true"
-    out_path, truth_path, probe_path, plot_path = check_outputs(
+    watched = settings.realtime and settings.stall_after is not None  # run_task's stall watch: its stacks' file
+    out_path, truth_path, probe_path, stalls_path, plot_path = check_outputs(
         force, ("--out", out_path),
         ("--out", out_path.with_name(stem + ".truth.csv") if target == "sim" else None),  # save_run's truth CSV
         ("--out", out_path.with_name(stem + ".probe.belief.yaml") if probing else None),
+        ("--out", out_path.with_name(stem + ".stalls.txt") if watched else None),
         ("--plot", check_png_name(plot)))
+    if stalls_path is not None and stalls_path.exists():  # --force: this run's stacks only
+        stalls_path.unlink()
     check_live(live)
     goal_xy = parse_xy(goal, "--goal") if goal is not None else None
     if target == "sim" and goal is not None:
@@ -150,7 +154,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
         bar = progress_bar(task.duration, f"{task.name} {mode}", quiet or as_json, counter="{n:.1f}/{total:.0f} s")
         try:
             result = run_task(task, start, settings, progress=lambda t: bar.update(t - bar.n), plant=plant,
-                              view=View([server, recorder]), robot=robot_start)
+                              view=View([server, recorder]), robot=robot_start, stall_file=stalls_path)
         finally:
             bar.close()
         save_run(result, out_path, task, settings, overwrite=force,
@@ -183,6 +187,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
         click.echo(f"recorded {out_path}" + (f", {truth_path.name}" if truth_path is not None and truth_path.exists()
                                              else "")
                    + (f", probe belief {probe_path}" if probe_path is not None else "")
+                   + (f", stalls' stacks {stalls_path.name}" if stalls_path is not None and stalls_path.exists() else "")
                    + (f", plot {plot_path}" if plot_path else ""))
     if result.failure is not None:
         if result.failure.startswith("interrupted"):

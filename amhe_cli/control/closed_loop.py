@@ -60,6 +60,7 @@ from amhe_cli.io.truth import TRUTH_RECORD
 from amhe_cli.control.gait import GAITS
 from amhe_cli.io.view import belief_message
 from amhe_cli.control.planner import Planner, PlannerSettings
+from amhe_cli.control.stall_watch import AFTER as STALL_AFTER, PERIOD as STALL_PERIOD, StallWatch
 from amhe_cli.control.reflex import FallReflex, ReflexSettings, fallen, recovery_command, trunk_tilt
 from amhe_cli.control.robot_side import (READ_EVERY, READ_FROM, READ_SAMPLES, READ_WINDOW, RobotSide, follow,
                                          read_robot, robot_side, write_robot)
@@ -236,6 +237,9 @@ class RunSettings:
             wall clock) and, where they differ from what the planner models, plan for (and estimate
             with) the robot as read (:func:`~amhe_cli.control.robot_side.follow`); ``baseline`` and
             ``adaptive`` only. None (default): on the wall clock (a robot), off in the lock-step sim.
+        stall_after: on the wall clock, a stall of the planner's process longer than this [s] is a warning of the
+            run, with every thread's stack at the time written to :func:`run_task`'s ``stall_file``
+            (:class:`~amhe_cli.control.stall_watch.StallWatch`); None: not watched. The lock-step sim ignores it.
     """
 
     mode: str = "adaptive"
@@ -253,6 +257,7 @@ class RunSettings:
     latency: float | None = None
     mhe_shadow: bool = False
     robot_read: bool | None = None
+    stall_after: float | None = STALL_AFTER
 
     def check(self) -> None:
         if self.mode not in MODES:
@@ -273,6 +278,9 @@ class RunSettings:
         if self.robot_read and self.mode == "true":
             raise AmheError("robot_read follows a robot unlike its model, and mode true plans with the plant's "
                             "truth: use mode baseline or adaptive")
+        if self.stall_after is not None and not STALL_PERIOD < self.stall_after <= 10:
+            raise AmheError(f"stall_after {self.stall_after} s: expected a time in ({STALL_PERIOD:g}, 10] s, "
+                            "or none to not watch the planner's process")
         if self.cycle < self.planner.dt - 1e-12:
             raise AmheError(f"cycle {self.cycle} s is shorter than the planner's dt {self.planner.dt} s")
         if self.latency is not None:
@@ -314,6 +322,9 @@ class RunResult:
             window's end [s], when the job started and ended [s after that window's update began, which is
             about ``t`` on the plant's clock], its GPU batches (None off a GPU) and ``test``, ``failed`` or the
             decision's reason; empty otherwise.
+        stalls: on the wall clock, each stall of the planner's process longer than ``stall_after``
+            (:class:`~amhe_cli.control.stall_watch.StallWatch`): ``(t, length)``, its start on the plant's clock [s]
+            and its length [s].
     """
 
     success: bool
@@ -336,10 +347,11 @@ class RunResult:
     recoveries: int = 0
     side: RobotSide | None = None
     decision_jobs: list = field(default_factory=list)
+    stalls: list = field(default_factory=list)
 
     def metrics(self) -> dict:
         """The JSON object ``amhe run --json`` prints (``failure`` only when the plant failed; ``mhe_jobs``, the
-        :attr:`decision_jobs`, only where there were any)."""
+        :attr:`decision_jobs`, and ``stalls``, :attr:`stalls`, only where there were any)."""
         out = {"success": bool(self.success), "e_g": self.e_g, "J": self.J, "t_exec": self.t_exec,
                "rmse": self.rmse, "fell": bool(self.fell), "recoveries": int(self.recoveries)}
         if self.failure is not None:
@@ -347,6 +359,8 @@ class RunResult:
         if self.decision_jobs:
             out["mhe_jobs"] = [[round(t, 3), round(a, 3), round(b, 3), n, what]
                                for t, a, b, n, what in self.decision_jobs]
+        if self.stalls:
+            out["stalls"] = [[round(t, 3), round(d, 3)] for t, d in self.stalls]
         return out
 
 
@@ -504,7 +518,7 @@ def has_fallen(task: Task, scene: Scene, qpos: np.ndarray) -> bool:
 
 def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = None,
              progress: Callable[[float], None] | None = None, plant: Plant | None = None,
-             view=None, robot: Belief | None = None) -> RunResult:
+             view=None, robot: Belief | None = None, stall_file: str | Path | None = None) -> RunResult:
     """Run ``task`` on a plant with the planner in ``settings.mode`` (paper Algorithm 1).
 
     Args:
@@ -523,14 +537,18 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         robot: a belief whose robot side (:mod:`~amhe_cli.control.robot_side`: servo, payload, torque
             limits, robot–box friction) the planner and the MHE model instead of ``belief``'s, whose box
             they keep (None: ``belief``'s own; ``true`` mode takes the plant's truth either way).
+        stall_file: on the wall clock, where every thread's stack goes at each stall of this process longer than
+            ``settings.stall_after`` (appended; removed at the end if no stall came; None: stalls are warned of,
+            not traced).
     Returns:
         :class:`RunResult`; ``failure`` says why a run ended early — a plant
         failure (a safety trip, a lost link), Ctrl-C, or an exception in the
         loop: the plant was closed with that reason (a robot damped) and the
         recording up to then is kept.
     Raises:
-        AmheError: bad settings, a belief missing for a mode that needs one, or
-            ``true`` mode on a plant whose truth nobody knows (the plant is closed first).
+        AmheError: bad settings, a belief missing for a mode that needs one,
+            ``true`` mode on a plant whose truth nobody knows, or a ``stall_file`` that cannot be opened (the plant
+            is closed first).
     """
     s = settings or RunSettings()
     s.check()
@@ -566,11 +584,29 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     mhe_steps: list[int] = []  # each informative update's step budget (MHESettings.fill)
     mhe_compute: list[float] = []  # each informative update's wall time [s]
     read_times: list[float] = []  # each read of the robot's servo and motors: wall time [s]
-    estimator, planner, reader = None, None, None
+    estimator, planner, reader, watch = None, None, None, None
+    stalls: list[tuple[float, float]] = []  # (start on the plant's clock, length) [s]: RunResult.stalls
+    taken = [0.0]  # the plant time of the last take_stalls
+
+    def take_stalls(now: float) -> None:
+        # the watch's stalls, dated on the plant's clock: back from now by the wall time since (a robot's clock is
+        # the wall's), not before the last cycle that saw none (the realtime sim's clock runs only while it plans)
+        for start, length in watch.take() if watch is not None else []:
+            t0 = max(now - (time.monotonic() - start), taken[0])
+            stalls.append((t0, length))
+            warn(f"t={t0:.2f} s: the planner's process stalled {length:.2f} s (no plan, pose or estimate meanwhile"
+                 + (f"; every thread's stack then: {watch.path.name})" if watch.path is not None else ")"))
+        taken[0] = now
+
     plan_times, wall0 = [], time.perf_counter()
     fell, t_reach = False, None
     costs, speeds, cmd_speeds, box_path = [], [], [], []
     try:
+        if clocked and s.stall_after is not None:
+            try:
+                watch = StallWatch(s.stall_after, stall_file).start()
+            except OSError as e:
+                raise AmheError(f"stall file {stall_file}: {e.strerror}") from None
         if s.mode == "true" and plant.truth_values is None:
             raise AmheError("mode true needs the plant's true parameters, and this plant has none "
                             "(a real robot): use --mode baseline or adaptive")
@@ -602,6 +638,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         plant.close(f"{type(exc).__name__}: {exc}")
         if planner is not None:
             planner.close()
+        if watch is not None:
+            watch.close()
         raise
     try:
         pscene = planner.scene
@@ -790,6 +828,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     next_read = now + READ_EVERY
             for text in plant.take_messages():
                 warn(f"t={now:.2f} s: {text}")
+            take_stalls(now)
             if progress is not None:
                 progress(now)
     except PlantFailure as exc:
@@ -806,6 +845,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator.close()
         if reader is not None:
             reader.shutdown(wait=True)
+        if watch is not None:
+            watch.close()
+            take_stalls(clock[0] + (time.perf_counter() - wall0 - wall))
     if estimator is not None and mhe_deferred:
         messages.append(f"{mhe_deferred} MHE updates deferred to keep the estimator within "
                         + (f"{mhe_duty:.0%} of a core" if mhe_duty < 1 else f"its {mhe_threads} core(s)")
@@ -843,6 +885,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
         plan_times=np.array(plan_times), failure=failure, extras=plant.extras(),
         recoveries=reflex.recoveries, side=side,
         decision_jobs=[tuple(j) for j in estimator.mhe.jobs] if clocked and estimator is not None else [],
+        stalls=stalls,
     )
 
 

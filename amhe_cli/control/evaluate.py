@@ -36,7 +36,7 @@ from amhe_cli.model.scene import Scene, infer_scene_config
 from amhe_cli.control.tasks import CostWeights, Task, get_task
 
 CONFIG_KEYS = {"planner", "weights", "mhe", "mhe_params", "kp", "kd", "cycle", "latency", "mhe_cores", "task",
-               "safety", "reflex", "mhe_shadow", "mocap_latency", "robot_read", "relay_process"}
+               "safety", "reflex", "mhe_shadow", "mocap_latency", "robot_read", "relay_process", "stall_after"}
 
 
 def load_config(path: str | os.PathLike | None) -> dict:
@@ -113,7 +113,9 @@ def run_settings(task_name: str, mode: str, config: dict | None = None, seed: in
                            **{k: _number(config, k) for k in ("kp", "kd", "cycle", "latency", "mhe_cores")
                               if config.get(k) is not None},
                            **({"mhe_params": _names(config["mhe_params"])} if "mhe_params" in config else {}),
-                           **({k: _flag(config, k) for k in ("mhe_shadow", "robot_read") if k in config}))
+                           **({k: _flag(config, k) for k in ("mhe_shadow", "robot_read") if k in config}),
+                           **({"stall_after": None if config["stall_after"] is None else _number(config, "stall_after")}
+                              if "stall_after" in config else {}))
     settings.check()
     return task, settings
 
