@@ -30,11 +30,17 @@ planner (lock-step; reproducible for a seed — the MHE's update for the window 
 previous plan's later targets, as a real robot would), and an estimate is used
 as soon as the thread has it; an update due while the last one still runs is
 skipped and logged.
+
+On the wall clock the objects made before the loop (every module, a GPU backend's kernels: half a million with
+MuJoCo Warp) are frozen out of the garbage collector (:func:`gc.freeze`) for the loop's length: a full pass over
+them held the planner's whole process 0.2–0.3 s mid-run, in 5 of 64 GPU clients traced by
+:class:`~amhe_cli.control.stall_watch.StallWatch` (docs/evaluation.md, stop 77).
 """
 
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import tempfile
 import threading
@@ -238,7 +244,8 @@ class RunSettings:
             with) the robot as read (:func:`~amhe_cli.control.robot_side.follow`); ``baseline`` and
             ``adaptive`` only. None (default): on the wall clock (a robot), off in the lock-step sim.
         stall_after: on the wall clock, a stall of the planner's process longer than this [s] is a warning of the
-            run, with every thread's stack at the time written to :func:`run_task`'s ``stall_file``
+            run (a note where it held the set-up before the loop), with every thread's stack at the time written to
+            :func:`run_task`'s ``stall_file``
             (:class:`~amhe_cli.control.stall_watch.StallWatch`); None: not watched. The lock-step sim ignores it.
     """
 
@@ -322,7 +329,7 @@ class RunResult:
             window's end [s], when the job started and ended [s after that window's update began, which is
             about ``t`` on the plant's clock], its GPU batches (None off a GPU) and ``test``, ``failed`` or the
             decision's reason; empty otherwise.
-        stalls: on the wall clock, each stall of the planner's process longer than ``stall_after``
+        stalls: on the wall clock, each stall of the planner's process in the loop longer than ``stall_after``
             (:class:`~amhe_cli.control.stall_watch.StallWatch`): ``(t, length)``, its start on the plant's clock [s]
             and its length [s].
     """
@@ -585,17 +592,23 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     mhe_compute: list[float] = []  # each informative update's wall time [s]
     read_times: list[float] = []  # each read of the robot's servo and motors: wall time [s]
     estimator, planner, reader, watch = None, None, None, None
+    frozen = False  # the objects made before the loop are out of the garbage collector's passes (module doc)
     stalls: list[tuple[float, float]] = []  # (start on the plant's clock, length) [s]: RunResult.stalls
     taken = [0.0]  # the plant time of the last take_stalls
+    looping = [None]  # time.monotonic() at the loop's start: a stall before it held the set-up, not the loop
 
     def take_stalls(now: float) -> None:
         # the watch's stalls, dated on the plant's clock: back from now by the wall time since (a robot's clock is
         # the wall's), not before the last cycle that saw none (the realtime sim's clock runs only while it plans)
         for start, length in watch.take() if watch is not None else []:
             t0 = max(now - (time.monotonic() - start), taken[0])
+            where = f"; every thread's stack then: {watch.path.name}" if watch.path is not None else ""
+            if looping[0] is None or start < looping[0]:  # imports, a GPU backend's set-up: the robot stands
+                note(f"t={t0:.2f} s: the set-up held the planner's process {length:.2f} s{where}")
+                continue
             stalls.append((t0, length))
-            warn(f"t={t0:.2f} s: the planner's process stalled {length:.2f} s (no plan, pose or estimate meanwhile"
-                 + (f"; every thread's stack then: {watch.path.name})" if watch.path is not None else ")"))
+            warn(f"t={t0:.2f} s: the planner's process stalled {length:.2f} s (no plan, pose or estimate "
+                 f"meanwhile{where})")
         taken[0] = now
 
     plan_times, wall0 = [], time.perf_counter()
@@ -703,7 +716,13 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             who = "the planner and the MHE model" if estimator is not None else "the planner models"
             warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on")
 
+        frozen = clocked and gc.isenabled() and gc.get_freeze_count() == 0  # (not where a caller froze its own)
+        if frozen:  # (module doc) one full pass now, while the robot stands, then none over these objects
+            gc.collect()
+            gc.freeze()
+            note(f"{gc.get_freeze_count()} objects made before the loop left out of the garbage collector's passes")
         m = plant.measure()
+        looping[0] = time.monotonic()
         while m.t < task.duration - 1e-9:
             t, q, v = m.t, m.qpos, m.qvel
             clock[0] = t
@@ -845,6 +864,8 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator.close()
         if reader is not None:
             reader.shutdown(wait=True)
+        if frozen:
+            gc.unfreeze()
         if watch is not None:
             watch.close()
             take_stalls(clock[0] + (time.perf_counter() - wall0 - wall))
