@@ -33,7 +33,7 @@ skipped and logged.
 
 On the wall clock the objects made before the loop (every module, a GPU backend's kernels: half a million with
 MuJoCo Warp) are frozen out of the garbage collector (:func:`gc.freeze`) for the loop's length: a full pass over
-them held the planner's whole process 0.2–0.3 s mid-run, in 5 of 64 GPU clients traced by
+them held the planner's whole process 0.24–0.32 s mid-run, in 4 of 64 GPU clients traced by
 :class:`~amhe_cli.control.stall_watch.StallWatch` (docs/evaluation.md, stop 77).
 """
 
