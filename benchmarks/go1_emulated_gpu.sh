@@ -2,8 +2,9 @@
 # The emulated Go1 loop with the MHE's line decisions on a GPU (`mhe: {attribute: true, attribute_device: cuda}`),
 # as docs/evaluation.md measures it on a lent GPU host: Warp's kernel cache warmed once by one process (so no
 # client compiles them mid-grid, and no two compile at once), then `go1_emulated_runs.py` over the tasks and
-# seeds, each run's JSON line appended to $OUT/rows.jsonl as it finishes (a call cut off keeps every finished
-# run), its stderr to $OUT/grid.log, the table at the end.
+# seeds (two clients per GPU on a 16-CPU host with one, as many on each GPU of a larger one: `--gpus`), each run's
+# JSON line appended to $OUT/rows.jsonl as it finishes (a call cut off keeps every finished run), its stderr to
+# $OUT/grid.log, the table at the end.
 #
 # Usage (amhe's dependencies and amhe[gpu] importable, run from the repository's root; BELIEFS holds one
 # starting belief per task, TASK.belief.yaml, e.g. from `amhe probe --target sim`):
@@ -29,7 +30,9 @@ python3 -c "from amhe_cli.cli import main; main()" run --task "$first_task" --mo
     --belief "$BELIEFS/$first_task.belief.yaml" --config "$config" --out "$OUT/warm.mcap" > "$OUT/warm.log" 2>&1
 echo "warm: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"
 rm -f "$OUT/warm.mcap" "$OUT/warm.truth.csv"
+# every GPU of the host: the pairs the CPUs hold (6 + 1 each) spread over them, pair k on GPU k mod N
+gpus=$(nvidia-smi -L 2>/dev/null | grep -c '^GPU')
 python3 "$here/go1_emulated_runs.py" --tasks "$tasks" --modes adaptive --seeds "$seeds" --first-seed "$first" \
-    --cores-per-run 6 --emulator-cores 1 --config "$config" --run-args "--belief $BELIEFS/{task}.belief.yaml" \
+    --cores-per-run 6 --emulator-cores 1 --gpus "$gpus" --config "$config" --run-args "--belief $BELIEFS/{task}.belief.yaml" \
     --jsonl "$OUT/rows.jsonl" --out-dir "$OUT/recordings" --keep "$OUT/kept" "$@" >> "$OUT/grid.log" 2>&1
 echo "grid: rc $? in $(( $(date +%s) - t0 )) s" | tee -a "$OUT/grid.log"

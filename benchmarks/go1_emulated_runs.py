@@ -9,7 +9,8 @@ the client pinned with ``taskset`` to the run's own ``--cores-per-run`` CPUs (a 
 machine standing in for several robot laptops), the emulator to ``--emulator-cores`` CPUs
 of its own (default 1 where the machine has one to spare: the robot's computer, which a
 laptop's client never shares; 0 puts it on the client's CPUs); ``--parallel`` pairs run at
-once (default: as many as the CPUs hold). The same seeds run in every mode, so rows pair.
+once (default: as many as the CPUs hold), spread over ``--gpus`` GPUs where the clients' decisions run on one. The
+same seeds run in every mode, so rows pair.
 One JSON line per run as it finishes (also appended to ``--jsonl``; ``emulator`` holds the emulator's
 overruns, its longest gap between two state packets sent and the states its socket refused, so a watchdog
 trip on a gap the rig made is told from the client's own, and the longest gap between two commands it received
@@ -281,9 +282,20 @@ def recording_name(task_name: str, mode: str, seed: int, label: str | None) -> s
     return f"go1_{task_name}_{mode}_s{seed}{tag}.mcap"
 
 
-def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], list[int]]) -> dict:
-    """One emulator + client pair; ``cores``: the client's CPUs and the emulator's own (empty: the client's)."""
-    client, robot = cores
+def pair_slots(cpus: list[int], parallel: int, cores_per_run: int, emulator_cores: int,
+               gpus: int = 0) -> list[tuple[list[int], list[int], int | None]]:
+    """Where each of ``parallel`` emulator + client pairs runs: ``(the client's CPUs, the emulator's own, the
+    client's GPU)``, CPUs taken in order from ``cpus``, pair k on GPU k mod ``gpus`` (None where ``gpus`` is 0)."""
+    per = cores_per_run + emulator_cores
+    return [(cpus[k * per:k * per + cores_per_run], cpus[k * per + cores_per_run:(k + 1) * per],
+             k % gpus if gpus > 0 else None) for k in range(parallel)]
+
+
+def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], list[int], int | None]) -> dict:
+    """One emulator + client pair; ``cores``: the client's CPUs, the emulator's own (empty: the client's) and the
+    GPU the client's CUDA work goes to (``CUDA_VISIBLE_DEVICES``; None: as this process's)."""
+    client, robot, gpu = cores
+    env = None if gpu is None else {**os.environ, "CUDA_VISIBLE_DEVICES": str(gpu)}
     pin = ["taskset", "-c", ",".join(map(str, client))]
     pin_emu = ["taskset", "-c", ",".join(map(str, robot or client))]
     pose = free_port()
@@ -313,7 +325,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
                                             *(["--config", args.config] if args.config else []),
                                             *(["--threads", str(args.threads)] if args.threads else []),
                                             *shlex.split(args.run_args.replace("{task}", task_name))],
-                              capture_output=True, text=True, timeout=duration + 180)
+                              capture_output=True, text=True, timeout=duration + 180, env=env)
         wall = time.monotonic() - t0
     finally:
         emu.terminate()
@@ -341,6 +353,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     text = f"{res.get('failure', '')} {res.get('reason', '')}"
     res.update(task=task_name, mode=mode, seed=seed, rc=proc.returncode if proc else None, wall_s=round(wall, 1),
                **({"threads": args.threads} if args.threads else {}),
+               **({"gpu": gpu} if gpu is not None else {}),
                **({"label": args.label} if args.label else {}),
                **({"emulator_args": args.emulator_args} if args.emulator_args else {}),
                **({"run_args": args.run_args} if args.run_args else {}),
@@ -467,6 +480,9 @@ def main() -> None:
                     help="folder of the runs' recordings, go1_TASK_MODE_sSEED[_LABEL].mcap (grids side by side "
                          "into one folder need labels of their own)")
     ap.add_argument("--jsonl", default=None, help="append each run's JSON line here as it finishes")
+    ap.add_argument("--gpus", type=int, default=0,
+                    help="spread the clients over this many GPUs, pair k on GPU k mod N (CUDA_VISIBLE_DEVICES), "
+                         "for decisions on a GPU (mhe: {attribute_device: cuda}); 0 (default): as this process's")
     ap.add_argument("--config", default=None, help="run config YAML passed to amhe run")
     ap.add_argument("--threads", type=int, default=None,
                     help="the client's planner threads, passed to amhe run (default: its own split of the "
@@ -507,11 +523,10 @@ def main() -> None:
         sys.exit(f"--parallel {parallel} x (--cores-per-run {args.cores_per_run} + --emulator-cores "
                  f"{args.emulator_cores}) needs {parallel * per} CPUs, this machine has {ncpu}")
     os.makedirs(args.out_dir, exist_ok=True)  # every run's recording goes here: a missing folder failed each run
-    cpus = sorted(os.sched_getaffinity(0))
     slots: Queue = Queue()
-    for k in range(parallel):  # (the client's CPUs, the emulator's own)
-        own = cpus[k * per:(k + 1) * per]
-        slots.put((own[:args.cores_per_run], own[args.cores_per_run:]))
+    for slot in pair_slots(sorted(os.sched_getaffinity(0)), parallel, args.cores_per_run, args.emulator_cores,
+                           args.gpus):
+        slots.put(slot)
     tasks, modes = args.tasks.split(","), args.modes.split(",")
     jobs = [(t, m, s) for s in range(args.first_seed, args.first_seed + args.seeds) for t in tasks for m in modes]
 

@@ -411,3 +411,15 @@ def test_the_emulated_grid_names_each_label_s_recordings_apart(emulated_grid):
     names = {grid.recording_name("t3", "adaptive", 2, label) for label in (None, "new", "old", "a/b c")}
     assert names == {"go1_t3_adaptive_s2.mcap", "go1_t3_adaptive_s2_new.mcap", "go1_t3_adaptive_s2_old.mcap",
                      "go1_t3_adaptive_s2_a_b_c.mcap"}
+
+
+def test_the_emulated_grid_gives_each_pair_cpus_of_its_own_and_spreads_the_clients_over_the_gpus(emulated_grid):
+    """``--cores-per-run 6 --emulator-cores 1 --gpus 2`` on 32 CPUs: four pairs, none sharing a CPU, two clients on
+    each GPU (how stop 77 ran T3 and T4 side by side on a lent 2 × H200 by hand); without ``--gpus``, no GPU set."""
+    slots = emulated_grid.pair_slots(list(range(32)), 4, 6, 1, gpus=2)
+    assert slots[0] == (list(range(6)), [6], 0) and slots[1] == (list(range(7, 13)), [13], 1)
+    used = [c for client, emu, _ in slots for c in client + emu]
+    assert len(used) == len(set(used)) == 28
+    assert [g for _, _, g in slots] == [0, 1, 0, 1]
+    assert [g for _, _, g in emulated_grid.pair_slots(list(range(8)), 2, 2, 1)] == [None, None]
+    assert emulated_grid.pair_slots([4, 5], 1, 2, 0)[0] == ([4, 5], [], None)  # the emulator on the client's CPUs
