@@ -380,3 +380,29 @@ def test_a_bad_mocap_latency_is_a_one_line_error_before_any_link(tmp_path):
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
     assert len(errors) == 1 and "mocap_latency '12 ms'" in errors[0] and "auto" in errors[0], proc.stderr
     assert "Traceback" not in proc.stderr and not (tmp_path / "x.mcap").exists()
+
+
+def test_decisions_on_a_missing_gpu_are_a_one_line_error_before_the_robot_gets_a_packet(tmp_path):
+    """``mhe: {attribute: true, attribute_device: cuda}`` where no CUDA device (or no GPU package) is: refused before
+    the link opens — not after the robot has stood up, as when the MHE was made inside the run."""
+    from amhe_cli.model.device import cuda_device
+    if cuda_device() is not None:
+        pytest.skip("this machine has a CUDA device: the decisions would load")
+    cfg = tmp_path / "gpu.yaml"
+    cfg.write_text("mhe: {attribute: true, attribute_device: cuda}\n")
+    robot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    robot.bind(("127.0.0.1", 0))
+    robot.settimeout(0.5)
+    try:
+        proc = subprocess.run(AMHE + ["run", "--target", "go1", "--robot", f"127.0.0.1:{robot.getsockname()[1]}",
+                                      "--local-port", "0", "--mocap", f"udp:127.0.0.1:{free_port()}", "--mode",
+                                      "adaptive", "--config", str(cfg), "--out", str(tmp_path / "x.mcap")],
+                              capture_output=True, text=True, timeout=120)
+        with pytest.raises(socket.timeout):
+            robot.recvfrom(2048)  # nothing was ever sent to the robot
+    finally:
+        robot.close()
+    assert proc.returncode == 2, proc.stderr
+    errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("amhe: error:")]
+    assert len(errors) == 1 and "mhe attribute_device cuda" in errors[0], proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "x.mcap").exists()

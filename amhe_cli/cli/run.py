@@ -127,6 +127,7 @@ def run_cmd(task_name, target, mode, belief, robot_belief, config, seed, duratio
     try:
         plant = None
         if target == "go1":
+            _load_estimator(task, settings, start, quiet or as_json)
             plant, task, start = _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body,
                                             goal_xy, arm, quiet or as_json)
             frames.goal = tuple(task.goal)  # placed where the robot and the box stand (the recording's scene)
@@ -265,6 +266,43 @@ def _robot_check(result, settings, scene) -> str | None:
 def _sigterm_as_interrupt(signum, frame):
     """SIGTERM (a process manager, ``kill``) ends a robot run like Ctrl-C: damping, the recording kept."""
     raise KeyboardInterrupt
+
+
+def _load_estimator(task, settings, start, quiet: bool) -> None:
+    """Before the robot is connected: what an ``adaptive`` run's MHE loads at its start, so that neither a missing
+    device nor minutes of loading come while the robot stands, the run's clock running (docs/evaluation.md, stop 77).
+
+    The smoothing's imports (``scipy.signal``: 0.2–0.6 s of a GPU client's set-up), and with the line decisions on
+    a backend of their own (``mhe: {attribute: true, attribute_device: …}``) that backend, warmed on the task's
+    nominal scene and closed: on ``cuda`` MuJoCo Warp's kernels compile into Warp's cache the first time on a
+    machine (minutes) and load into this process, so the run's own warm after the robot stands up takes seconds.
+
+    Raises:
+        AmheError: the decisions' device is missing (``--device cuda: …``), before any packet to the robot.
+    """
+    if settings.mode != "adaptive":
+        return
+    from amhe_cli.control.closed_loop import make_estimator
+    from amhe_cli.io.smoothing import preload
+    from amhe_cli.model.device import choose_device
+
+    preload()
+    if not (settings.mhe.attribute and settings.mhe.attribute_device is not None):
+        return
+    try:
+        choose_device(settings.mhe.attribute_device)
+    except AmheError as e:  # said as the run config's key, not as an option this command lacks
+        raise AmheError(f"the run config's mhe attribute_device {settings.mhe.attribute_device}: "
+                        f"{str(e).split(': ', 1)[-1]}") from None
+    prior = {} if start is None else {k: v for k, v in start.values.items() if k in settings.mhe_params}
+    mhe = make_estimator(task, settings, 0.002, prior)
+    try:
+        took = mhe.warm()
+    finally:
+        mhe.close()
+    if not quiet:
+        click.echo(f"go1: the MHE's line decisions loaded on {settings.mhe.attribute_device} in {took:.1f} s, "
+                   "before the robot", err=True)
 
 
 def _start_go1(task, settings, cfg, start, robot, local_port, mocap, base_body, box_body, goal_xy, arm, quiet):
