@@ -22,9 +22,10 @@ fall-reflex recovery,
 ``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``) and
 ``mhe_decision_batches`` where their GPU backend spent its time (batches, steps, fields, read-back [s]),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
-``mhe_failed`` its updates that raised, ``stalls`` [t, s] of each stall of the client's process past 0.15 s (its
-threads' stacks then in the recording's ``.stalls.txt``, gathered into ``--keep``'s ``stalls.txt``); each ``mhe`` segment after a change holds ``within_after_s``, the
-seconds after the change from which every estimate held both bounds, None where the last did not,
+``mhe_failed`` its updates that raised, ``stalls`` [t, s] of each stall of the client's process in its loop past
+0.15 s (every thread's stack at each stall, the set-up's too, in the recording's ``.stalls.txt``, gathered into
+``--keep``'s ``stalls.txt``); each ``mhe`` segment after a change holds ``within_after_s``, the seconds after the
+change from which every estimate held both bounds, None where the last did not,
 ``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s,
 and ``attributed_s`` / ``to_planner_s``, the data after the change at its first attribution and the seconds from
 there to the planner (:func:`attribution_latency`)), then one row per (task, mode):
@@ -573,15 +574,15 @@ def main() -> None:
                     except Exception as exc:  # noqa: BLE001 - the whole recording is kept either way
                         print(f"could not cut the last {args.keep_tail:g} s of {src}: {exc}", flush=True)
         # every run's stalls of the client's process, with each thread's stack then (amhe run's STEM.stalls.txt)
-        traced = [r for r in rows if r.get("stalls")]
+        stacks = {(r["task"], r["mode"], r["seed"]): os.path.join(args.out_dir, recording_name(
+            r["task"], r["mode"], r["seed"], args.label))[:-len(".mcap")] + ".stalls.txt" for r in rows}
+        traced = [(r, stacks[r["task"], r["mode"], r["seed"]]) for r in rows
+                  if os.path.exists(stacks[r["task"], r["mode"], r["seed"]])]
         if traced:
             with open(os.path.join(args.keep, "stalls.txt"), "a") as f:
-                for r in traced:
-                    src = os.path.join(args.out_dir, recording_name(r["task"], r["mode"], r["seed"], args.label))
-                    src = src[:-len(".mcap")] + ".stalls.txt"
-                    f.write(f"==== {os.path.basename(src)}: stalls [t, s] {r['stalls']}\n")
-                    if os.path.exists(src):
-                        f.write(open(src).read())
+                for r, src in traced:
+                    f.write(f"==== {os.path.basename(src)}: the loop's stalls [t, s] {r.get('stalls', [])}\n")
+                    f.write(open(src).read())
             print(f"kept the stacks of {len(traced)} runs' stalls in {os.path.join(args.keep, 'stalls.txt')}",
                   flush=True)
 

@@ -278,7 +278,8 @@ def _load_estimator(task, settings, start, quiet: bool) -> None:
     machine (minutes) and load into this process, so the run's own warm after the robot stands up takes seconds.
 
     Raises:
-        AmheError: the decisions' device is missing (``--device cuda: …``), before any packet to the robot.
+        AmheError: the decisions' device is missing ("the run config's mhe attribute_device cuda: …"), before any
+            packet to the robot.
     """
     if settings.mode != "adaptive":
         return
