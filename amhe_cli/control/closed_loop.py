@@ -32,8 +32,8 @@ as soon as the thread has it; an update due while the last one still runs is
 skipped and logged.
 
 On the wall clock the objects made before the loop (every module, a GPU backend's kernels: half a million with
-MuJoCo Warp) are frozen out of the garbage collector (:func:`gc.freeze`) for the loop's length: a full pass over
-them held the planner's whole process 0.24–0.32 s mid-run, in 4 of 64 GPU clients traced by
+MuJoCo Warp) are frozen out of the garbage collector (:func:`gc.freeze`, not collected first) for the loop's length:
+a full pass over them held the planner's whole process 0.24–0.32 s mid-run, in 4 of 64 GPU clients traced by
 :class:`~amhe_cli.control.stall_watch.StallWatch` (docs/evaluation.md, stop 77).
 """
 
@@ -717,8 +717,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on")
 
         frozen = clocked and gc.isenabled() and gc.get_freeze_count() == 0  # (not where a caller froze its own)
-        if frozen:  # (module doc) one full pass now, while the robot stands, then none over these objects
-            gc.collect()
+        if frozen:  # (module doc) no pass over these objects from now on; freezing them takes microseconds, where a
+            # full pass first (0.04 s on amhe's CPU path, 0.2 s with MuJoCo Warp) held the process as its loop began:
+            # CI saw a relay tick judge the motion capture stale 0.15 s in, its poses not yet read
             gc.freeze()
             note(f"{gc.get_freeze_count()} objects made before the loop left out of the garbage collector's passes")
         m = plant.measure()
