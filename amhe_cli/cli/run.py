@@ -273,9 +273,10 @@ def _load_estimator(task, settings, start, quiet: bool) -> None:
     device nor minutes of loading come while the robot stands, the run's clock running (docs/evaluation.md, stop 77).
 
     The smoothing's imports (``scipy.signal``: 0.2–0.6 s of a GPU client's set-up), and with the line decisions on
-    a backend of their own (``mhe: {attribute: true, attribute_device: …}``) that backend, warmed on the task's
-    nominal scene and closed: on ``cuda`` MuJoCo Warp's kernels compile into Warp's cache the first time on a
-    machine (minutes) and load into this process, so the run's own warm after the robot stands up takes seconds.
+    a backend of their own (``mhe: {attribute: true, attribute_device: …}``) that backend, one batch rolled out on
+    the task's nominal scene and closed: on ``cuda`` MuJoCo Warp's kernels compile into Warp's cache the first time
+    on a machine (minutes) and load into this process, so the run's own warm after the robot stands up (each
+    batch width's slot, on its own backend) takes seconds.
 
     Raises:
         AmheError: the decisions' device is missing ("the run config's mhe attribute_device cuda: …"), before any
@@ -298,7 +299,7 @@ def _load_estimator(task, settings, start, quiet: bool) -> None:
     prior = {} if start is None else {k: v for k, v in start.values.items() if k in settings.mhe_params}
     mhe = make_estimator(task, settings, 0.002, prior)
     try:
-        took = mhe.warm()
+        took = mhe.warm(slots=False)  # the widths' slots are the run's own backend's to set up
     finally:
         mhe.close()
     if not quiet:

@@ -592,7 +592,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
     mhe_compute: list[float] = []  # each informative update's wall time [s]
     read_times: list[float] = []  # each read of the robot's servo and motors: wall time [s]
     estimator, planner, reader, watch = None, None, None, None
-    frozen = False  # the objects made before the loop are out of the garbage collector's passes (module doc)
+    unfreeze = False  # the objects made before the loop are out of the garbage collector's passes (module doc)
     stalls: list[tuple[float, float]] = []  # (start on the plant's clock, length) [s]: RunResult.stalls
     taken = [0.0]  # the plant time of the last take_stalls
     looping = [None]  # time.monotonic() at the loop's start: a stall before it held the set-up, not the loop
@@ -716,7 +716,10 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             who = "the planner and the MHE model" if estimator is not None else "the planner models"
             warn(f"t={t:.2f} s: this robot is not the one the planner modelled: {new.source}; {who} it so from now on")
 
-        frozen = clocked and gc.isenabled() and gc.get_freeze_count() == 0  # (not where a caller froze its own)
+        # added to what a relay thread froze at its start (Relay.start: it unfreezes all at its stop); given back
+        # here only where nothing was frozen before (a relay in a process of its own freezes that process's heap)
+        frozen = clocked and gc.isenabled()
+        unfreeze = frozen and gc.get_freeze_count() == 0
         if frozen:  # (module doc) no pass over these objects from now on; freezing them takes microseconds, where a
             # full pass first (0.04 s on amhe's CPU path, 0.2 s with MuJoCo Warp) held the process as its loop began:
             # CI saw a relay tick judge the motion capture stale 0.15 s in, its poses not yet read
@@ -865,7 +868,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             estimator.close()
         if reader is not None:
             reader.shutdown(wait=True)
-        if frozen:
+        if unfreeze:
             gc.unfreeze()
         if watch is not None:
             watch.close()

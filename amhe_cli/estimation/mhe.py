@@ -461,7 +461,7 @@ class MovingHorizonEstimator:
         return [(5, TEST_CLIPS), (5 + lines, TEST_CLIPS + LOCATE_CLIPS), (lines + 1, LOCATE_CLIPS),
                 (lines + 4 * (FACTORS.size - 1), ATTRIBUTION_CLIPS)]
 
-    def warm(self, steps: int | None = None) -> float:
+    def warm(self, steps: int | None = None, slots: bool = True) -> float:
         """Load the line decisions' own backend now (``attribute_device``), not at the first decision.
 
         On ``cuda`` the first rollout loads MuJoCo Warp's kernels (seconds from Warp's cache, minutes the first
@@ -471,7 +471,9 @@ class MovingHorizonEstimator:
         for (its device model and data, and the captured step) is then set up too (:meth:`decision_batches`),
         so the first change test that seeks a change, usually at the change itself, does not set one up on the
         way to the planner. Each is rolled out ``steps`` steps (default: a clip's longest, 0.2 s) from the robot
-        standing beside the box at the current mean, its results dropped.
+        standing beside the box at the current mean, its results dropped. With ``slots`` off only the first batch
+        runs: the kernels load, no width is set up (a backend that is closed after, as ``run --target go1`` warms
+        one before it knows the robot's scene).
 
         Returns:
             wall time it took [s]; 0.0 without a backend of the decisions' own (they roll out on the
@@ -484,7 +486,7 @@ class MovingHorizonEstimator:
         steps = steps or int(round(0.2 / scene.model.opt.timestep))
         x0 = scene.full_state(*scene.standing_state())
         P = self.space.project(self.mean[None])[0]
-        batches = [(1, 1)] + (self.decision_batches() if self._decide_on_gpu else [])  # a CPU pool has no slots
+        batches = [(1, 1)] + (self.decision_batches() if self._decide_on_gpu and slots else [])  # a CPU pool: none
         for n_cand, n_clip in batches:
             self._decide_pool.rollout_candidates(self.space, np.repeat(P, n_cand, axis=0), np.repeat(x0, n_clip, 0),
                                                  np.tile(STAND_JOINTS, (n_clip, steps, 1)), np.full(n_clip, steps))
