@@ -179,6 +179,58 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
 
 
 
+def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_one_gpu_batch(step_log, monkeypatch):
+    """On a GPU backend of their own (here a second CPU pool on the GPU path) a decision that seeks its change scores
+    the search and its lines in one batch, every candidate on every clip: the lines' costs are those of their clips
+    scored alone. Where the search places the change more than SHIFT from where it sat, the lines' clips (drawn from
+    there) straddle it: they are drawn again from the new place and scored in a second batch."""
+    from amhe_cli.estimation import attribution, mhe as mhe_module
+    from amhe_cli.estimation.cost import RolloutCost
+    monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    mu = step_log.meta["truth_series"]["box_friction"]
+    t_step = float(step_log.t[np.argmax(mu > 0.45)])
+    t = t_step + 1.5
+    stop = int(np.searchsorted(step_log.t, t, side="right"))
+    real_evaluate, real_known, real_join = RolloutCost.evaluate, mhe_module.known_costs, mhe_module.join_clips
+    for shift in (0.0, 3 * attribution.SHIFT):
+        batches, known, parts = [], [], []
+        with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, attribute_device="cpu", seed=2)) as mhe:
+            mhe.update(step_log, t_step - 1.0)  # the windows' cost, whose W_x the decisions' takes
+            monkeypatch.setattr(RolloutCost, "evaluate", lambda self, P: (
+                batches.append((len(P), len(self.clips))) if self is mhe._decide_cost else None) or real_evaluate(self, P))
+            monkeypatch.setattr(mhe_module, "known_costs", lambda Q, JQ, ev: known.append((Q, JQ)) or real_known(Q, JQ, ev))
+            monkeypatch.setattr(mhe_module, "join_clips", lambda traj, sc, *p: parts.extend(p) or real_join(traj, sc, *p))
+            # the search places the change at the first sought clip ``shift`` or more after the lines' first clip
+            at = lambda: int(np.argmax(step_log.t[parts[0].start] >= step_log.t[parts[1].start].min() + shift))  # noqa: E731
+            monkeypatch.setattr(mhe_module, "locate", lambda C, held: at())
+            tr = mhe.tracker
+            for w in np.arange(t_step - 2.0, t + 0.01, 0.5):
+                tr.advance(w)
+            tr.open(t_step, 0.5)
+            mhe._decide(step_log, stop, t, t_step, "provisional", mhe.mean.copy(), np.random.default_rng(0))
+            sought, ahead = parts
+            placed = tr.pending[0] if tr.pending is not None else tr.decisions[-1].since
+            assert placed == pytest.approx(float(step_log.t[sought.start[at()]]))
+            lines = 2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1)
+            assert batches[0] == (lines + 1, len(sought) + len(ahead))  # the search and the lines, one batch
+            Q, JQ = known[0]
+            assert len(Q) == lines
+            if shift == 0.0:
+                assert len(batches) == 1  # nothing more rolled out for the decision
+                np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(ahead), Q).data, rtol=1e-9)
+            else:  # drawn again after the new place, a batch of their own
+                assert batches[1][0] == lines and len(batches) == 2
+                again = mhe._decide_cost.clips
+                assert again is not ahead and step_log.t[again.start].min() >= placed - 1e-9
+                np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(again), Q).data, rtol=1e-9)
+            assert tr.decisions and tr.decisions[-1].t == t
+        monkeypatch.undo()
+        monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
+
+
 def test_each_window_s_data_is_tested_and_two_tests_open_the_friction_step_for_its_decision(step_log, monkeypatch):
     """The change test (:meth:`SplitTracker.test`) on real rollouts, the windows' own change detection off: from
     the truth before the friction step, no test opens a change; after it, two successive windows' tests read

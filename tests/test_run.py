@@ -1095,7 +1095,7 @@ def test_the_line_decisions_backend_loads_before_the_wall_clock_loop_not_at_the_
         monkeypatch.setattr(m._decide_pool, "rollout_candidates", lambda *a: rolled.append(a))
         m.warm()
         widths = [(a[1].shape[0], a[2].shape[0]) for a in rolled]
-        assert widths == [(1, 1)] + m.decision_batches() and len(widths) == 5
+        assert widths == [(1, 1)] + m.decision_batches() and len(widths) == 6
         assert (2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1), attribution.CLIPS) in widths
 
 

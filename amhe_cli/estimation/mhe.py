@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
-                                             NAMES as SPLIT_NAMES, TEST_CLIPS, SplitTracker, locate)
+                                             NAMES as SPLIT_NAMES, SHIFT, TEST_CLIPS, SplitTracker, locate)
 from amhe_cli.estimation.clips import ClipsHeld, join_clips, legs_hold, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
@@ -131,9 +131,9 @@ class MHESettings:
             process's (``--device``; ``cpu`` in library use). In ``run``/``evaluate``
             configs: ``mhe: {device: cuda}``.
         attribute_device: rollout backend of ``attribute``'s line decisions alone, as ``device``; None
-            (default): the windows'. A decision is two large batches (22, then 8 candidates × 32 clips, and
-            a change's first one 23 × 48 before them to locate it; the first 3–6 s of a CPU core, 0.2–0.25 s
-            on an H100/H200 GPU) where a window is many small ones
+            (default): the windows'. A decision is large batches (on the CPU the lines, 22 candidates × 32 clips,
+            then 8 refinements, and before them 23 × 48 where it seeks its change, 3–6 s of a core; on a GPU one
+            batch of 62 × 32, or 63 × 80 where it seeks, 0.2–0.3 s on an H200) where a window is many small ones
             (faster on the CPU), and each window's change test one of 5 candidates × 16 clips
             (:meth:`~amhe_cli.estimation.attribution.SplitTracker.test`): ``cuda`` here keeps the windows on the CPU
             and sends the decisions and tests to the GPU,
@@ -456,10 +456,12 @@ class MovingHorizonEstimator:
     def decision_batches(self) -> list[tuple[int, int]]:
         """``(candidates, clips)`` of each kind of batch the tests and decisions roll out at full size on a GPU
         backend of their own (:meth:`warm` sets each up): a change test, a test that also seeks its change, a
-        change's location, and the lines with the points between them (:meth:`SplitTracker.between`)."""
+        change's location, the lines with the points between them (:meth:`SplitTracker.between`), and both at
+        once (:meth:`_decide`)."""
         lines = 2 * FACTORS.size
+        refined = lines + 4 * (FACTORS.size - 1)
         return [(5, TEST_CLIPS), (5 + lines, TEST_CLIPS + LOCATE_CLIPS), (lines + 1, LOCATE_CLIPS),
-                (lines + 4 * (FACTORS.size - 1), ATTRIBUTION_CLIPS)]
+                (refined, ATTRIBUTION_CLIPS), (refined + 1, LOCATE_CLIPS + ATTRIBUTION_CLIPS)]
 
     def warm(self, steps: int | None = None, slots: bool = True) -> float:
         """Load the line decisions' own backend now (``attribute_device``), not at the first decision.
@@ -733,32 +735,63 @@ class MovingHorizonEstimator:
         the data from ``since`` [s] (:meth:`SplitTracker.due`), over clips drawn as ``identify`` draws them
         with ``rng`` (:mod:`~amhe_cli.estimation.attribution`); ``base`` (d,) holds the other parameters. With
         ``seek`` off it does not seek its change first (a test just placed it). Its wall time goes to
-        :attr:`decision_times`."""
+        :attr:`decision_times`.
+
+        On a GPU backend of their own a decision that seeks its change scores the search (the lines and the split
+        held, :data:`LOCATE_CLIPS` clips from :meth:`SplitTracker.search_from`) and its lines (with the points
+        between them, :data:`ATTRIBUTION_CLIPS` clips drawn from where the change sat) in one batch, every
+        candidate on every clip, and keeps the lines' costs where the search places the change no more than
+        :data:`~amhe_cli.estimation.attribution.SHIFT` before where it sat nor after their first clip's start (its
+        jitter between decisions; else the lines are scored again on clips drawn from the new place). Two dependent batches before, each its latency, a
+        final decision waited for a provisional one still running in three of 32 emulated T3 runs and reached
+        the planner past 3 s after the switch (docs/evaluation.md "One batch a decision")."""
         t0 = time.perf_counter()
         tr = self.tracker
         try:
             start = tr.search_from(reason) if seek else None
+            known = None  # (Q, the costs of Q on ``clips``) where the seeking batch scored the lines already
             if start is not None:
                 # the change sought in the data from before it showed (:func:`locate`), then decided on clips
                 # drawn afresh after it: the clips that placed it favour a change, whichever there was
-                clips = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
-                if clips is not None:
-                    C = self._decision_cost(clips).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
-                    reason = tr.relocate(float(traj.t[clips.start[locate(C[:-1], C[-1])]]))
-                    since = tr.pending[0]
-            clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
+                sought = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
+                ahead = (self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
+                         if sought is not None and self._decide_on_gpu else None)
+                if ahead is not None:  # one batch: the search and the lines on clips drawn where the change sits
+                    P = tr.candidates(base)
+                    Q = np.vstack([P, tr.between(P)])
+                    both, (own, after) = join_clips(traj, self.scene, sought, ahead)
+                    C = self._decision_cost(both).evaluate(np.vstack([Q, tr.held(base)])).per_clip
+                    reason = tr.relocate(float(traj.t[sought.start[locate(C[:len(P), own], C[-1, own])]]))
+                    placed, first = tr.pending[0], float(traj.t[ahead.start].min())
+                    if since - SHIFT <= placed <= first + SHIFT:  # where they start (the search's jitter)
+                        clips, known = ahead, (Q, C[:-1, after].sum(axis=1))
+                elif sought is not None:
+                    C = self._decision_cost(sought).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
+                    reason = tr.relocate(float(traj.t[sought.start[locate(C[:-1], C[-1])]]))
+                since = tr.pending[0] if sought is not None else since
+            if known is None:
+                clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
             if clips is not None:
-                cost = self._decision_cost(clips)
+                cost = None  # the lines' cost on ``clips``, set up at its first use
+
+                def lines(R: np.ndarray) -> np.ndarray:
+                    nonlocal cost
+                    cost = cost or self._decision_cost(clips)
+                    return cost.evaluate(R).data
+
                 # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
                 # decision's end stays: its data may straddle a change the windows have not confirmed)
                 for retry in ((True, False) if reason != "period" else (False,)):
                     P = tr.candidates(base)
-                    if self._decide_on_gpu:  # the refinements' points in the lines' batch: one batch fewer
+                    if known is not None:  # scored in the seeking batch (re-centred lines: a batch of their own)
+                        score, known = known_costs(*known, lines), None
+                        J = score(P)
+                    elif self._decide_on_gpu:  # the refinements' points in the lines' batch: one batch fewer
                         Q = np.vstack([P, tr.between(P)])
-                        score = known_costs(Q, cost.evaluate(Q).data, lambda R: cost.evaluate(R).data)
+                        score = known_costs(Q, lines(Q), lines)
                         J = score(P)
                     else:  # on the CPU no rollout is spent on a point not read
-                        J, score = cost.evaluate(P).data, lambda R: cost.evaluate(R).data
+                        J, score = lines(P), lines
                     if tr.decide(t, reason, P, J, retry, score=score) is not None:
                         break
         finally:
