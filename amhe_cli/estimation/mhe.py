@@ -776,14 +776,8 @@ class MovingHorizonEstimator:
             if known is None:
                 clips = self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
             if clips is not None:
-                cost = None  # the lines' cost on ``clips``, set up at its first use
-
-                def lines(R: np.ndarray) -> np.ndarray:
-                    nonlocal cost
-                    if cost is None:
-                        cost = self._decision_cost(clips)
-                    return cost.evaluate(R).data
-
+                cost = self._decision_cost(clips)  # (after a seeking batch: its clips replaced by the lines')
+                lines = lambda R: cost.evaluate(R).data  # noqa: E731
                 # a change's lines once more, re-centred, where a line's minimum is at its end (a periodic
                 # decision's end stays: its data may straddle a change the windows have not confirmed)
                 for retry in ((True, False) if reason != "period" else (False,)):
