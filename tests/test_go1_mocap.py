@@ -261,6 +261,22 @@ def test_close_stops_thread_and_forbids_restart():
         src.start()
 
 
+def test_a_datagram_the_reader_has_not_read_is_unread_until_it_is():
+    # the plant's freshness verdict asks this before it calls a stream stale: a pose thread behind its socket
+    src = UdpPoseSource(0, host=LOOPBACK, bodies=BODIES)
+    try:
+        assert not src.unread()
+        with PoseSender(src.address) as tx:
+            tx.send({"Go1_body": ([0, 0, 0.3], IDENTITY)}, stamp=1.0)
+            _until(src.unread)  # arrived; the reader not started
+            src.start()
+            _received(src)
+            _until(lambda: not src.unread())
+    finally:
+        src.close()
+    assert not src.unread()  # closed: nothing to read
+
+
 def test_sender_noise_has_the_requested_sigma():
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)  # 300 datagrams in one burst

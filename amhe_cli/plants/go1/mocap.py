@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import json
 import math
+import select
 import socket
 import threading
 import time
@@ -359,6 +360,12 @@ class PoseSource:
             return math.inf
         return (time.monotonic() if now is None else float(now)) - sample.received
 
+    def unread(self) -> bool:
+        """True where poses have arrived that the reader thread has not yet read: this process, not the stream,
+        is behind (after a stall, the GIL elsewhere). A source that cannot tell (a library's blocking read)
+        says False; the caller then judges the stream by :meth:`latest` alone."""
+        return False
+
     def wait(self, names: tuple[str, ...] | None = None, timeout: float = 2.0) -> dict[str, PoseSample]:
         """Block until every body in ``names`` (default: ``bodies``) has an accepted sample.
 
@@ -610,6 +617,13 @@ class UdpPoseSource(PoseSource):
                 time.sleep(0.01)
                 continue
             self.handle_datagram(data, time.monotonic())
+
+    def unread(self) -> bool:
+        """True where a datagram waits at the socket, unread (``select`` with no wait; False once closed)."""
+        try:
+            return bool(select.select([self._sock], [], [], 0)[0])
+        except (OSError, ValueError):  # closed meanwhile
+            return False
 
     def handle_datagram(self, data: bytes, received: float) -> None:
         """Decode one datagram and ingest its bodies (the reader thread's step; public for replay tools).

@@ -195,11 +195,17 @@ class Go1Plant(Plant):
     def _on_tick(self, now: float, state, q_sent, mode) -> None:
         s = self.settings
         wall = time.monotonic()  # ``now`` is the tick's time: later than it where the ticks are taken late
-        if wall - now <= LATE_TICK or wall - self._judged > JUDGE_WITHIN:
-            self._judged = wall
+        overdue = wall - self._judged > JUDGE_WITHIN
+        if wall - now <= LATE_TICK or overdue:
             latest = (self.poses.latest(s.base_body), self.poses.latest(s.box_body))
-            self._fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
-            self.relay.set_mocap_ok(self._fresh)
+            fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
+            # poses waiting unread at the socket are this process behind, not the stream: its pose thread,
+            # starved, has not read them yet (CI saw "stale" and "fresh again" 0.08 s into a run, 2 cores
+            # loaded); a stale verdict waits for them to be read
+            if fresh or overdue or not self.poses.unread():
+                self._judged = wall
+                self._fresh = fresh
+                self.relay.set_mocap_ok(fresh)
         # else a tick taken late, this process catching up after a stall of its own: its pose thread, stalled as
         # well, has not yet read the poses that queued meanwhile, and the verdict waits for a tick on time (CI
         # saw a "motion capture stale" 0.7 s into a run so, gone 4 ms later)
