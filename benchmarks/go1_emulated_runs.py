@@ -82,6 +82,8 @@ from mhe_accuracy import MASS_BOUND, MU_BOUND, held_from, within_bounds  # bench
 
 AMHE = child_command()
 EVENT = re.compile(r"event (\w+) -> ([-+0-9.eE]+) at t=([0-9.]+) s \(monotonic ([0-9.]+)\)")
+#: the box the emulator plays where ``--box`` set it (its first line's last part: ``, box box_mass 6, box_friction 0.6``)
+EMULATOR_BOX = re.compile(r", box ((?:box_\w+ [-+0-9.eE]+(?:, )?)+)$")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")
 EMULATOR_COMMANDS = re.compile(r"longest command gap ([0-9.]+) ms")
@@ -125,9 +127,19 @@ def run_records(path: str) -> dict:
 SWAPS_AFTER = 8.0
 
 
-def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> list[dict]:
+def emulator_box(first_line: str) -> dict[str, float]:
+    """The box parameters the emulator's first line says ``--box`` set (name -> value; {} where none): the truth
+    the run's estimates are judged against from the start, in place of the task's."""
+    m = EMULATOR_BOX.search(first_line.rstrip())
+    if m is None:
+        return {}
+    return {name: float(value) for name, value in (part.split(" ") for part in m.group(1).split(", "))}
+
+
+def mhe_errors(recording: str, task, events: list[tuple], t0: float | None, box: dict | None = None) -> list[dict]:
     """Per segment of constant truth (the start, then after each fired event): the worst estimate error
-    from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic)."""
+    from ``SETTLE`` s into it to its end, on the client's clock. ``events``: (param, value, monotonic); ``box``:
+    the emulator's own box at the start where it is not the task's (:func:`emulator_box`)."""
     try:
         t, est, labels = read_float_arrays(recording, "/amhe/estimate")
     except ImportError:
@@ -136,7 +148,7 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None) -> l
         return [{"error": f"{type(exc).__name__}: {exc}"}]
     if not len(t):
         return []
-    truth = dict(task.truth)
+    truth = {**task.truth, **(box or {})}
     segments, start = [], 0.0
     changes = sorted((mono - t0, p, v) for p, v, mono in events) if t0 is not None else []
     run_end = float(t[-1])
@@ -318,6 +330,7 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
         while "listening on udp://" not in first:  # a warning on stderr before it
             first = lines.get(timeout=60)
         port = int(first.split("udp://127.0.0.1:")[1].split(",")[0])
+        box = emulator_box(first)
         t0 = time.monotonic()
         proc = subprocess.run(pin + AMHE + ["run", "--task", task_name, "--target", "go1", "--robot",
                                             f"127.0.0.1:{port}", "--local-port", "0", "--mocap", f"udp:127.0.0.1:{pose}",
@@ -399,7 +412,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     res["events"] = [{"param": p, "value": v, "t": round(mono - t0_run, 2) if t0_run else None}
                      for p, v, mono in events]
     try:
-        res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run)
+        if box:  # the truth it started from, where not the task's
+            res["box"] = box
+        res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run, box)
     except ImportError:
         raise
     except Exception as exc:  # noqa: BLE001 - a benchmark row says what went wrong rather than ending the grid

@@ -369,6 +369,19 @@ def test_the_emulated_grid_says_how_much_data_a_change_took_and_how_long_its_spl
     assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] is None
 
 
+def test_the_emulated_grid_judges_the_estimates_against_the_box_the_emulator_says_it_plays(emulated_grid):
+    """``--emulator-args='--box …'``: the emulator's first line names its box, and the rows' errors are measured
+    against it, not the task's (a robot-box friction named before it is not the box's)."""
+    import subprocess
+    proc = subprocess.run([*emulated_grid.AMHE, "emulate", "go1", "--task", "t4", "--port", "0", "--pose-to", "off",
+                           "--duration", "0.1", "-q", "--box", "box_mass=6.5,box_friction=0.3",
+                           "--robot", "robot_box_friction=0.8"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    first = proc.stdout.splitlines()[0]
+    assert emulated_grid.emulator_box(first) == {"box_mass": 6.5, "box_friction": 0.3}, first
+    assert emulated_grid.emulator_box(first.split(", box ")[0]) == {}  # the task's own box
+
+
 def test_the_emulated_grid_keeps_the_recordings_worth_reading_falls_first(emulated_grid):
     """``--keep``: a fall, then a trip, then the changes held latest after 3 s (never first); none held in time."""
     def row(seed, fell=False, trip=False, held=2.0):
