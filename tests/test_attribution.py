@@ -5,7 +5,8 @@ import pytest
 
 from amhe_cli.errors import AmheError
 from amhe_cli.estimation.attribution import (BACK, CHANGE, DETECT, DROP, FACTORS, FINE, LOCATE_MIN, MERGE, OPEN,
-                                            PERIOD, QUIET, RELOCATE, RETRY, SHIFT, SPAN, SplitTracker, line_minimum, locate)
+                                            PERIOD, QUIET, RELOCATE, RETRY, SHIFT, SPAN, TIE, SplitTracker,
+                                            line_minimum, locate)
 from amhe_cli.estimation.mhe import MHESettings, MovingHorizonEstimator
 from amhe_cli.model.params import ParameterSpace
 from amhe_cli.model.scene import Scene, SceneConfig
@@ -229,6 +230,29 @@ def test_a_change_still_short_of_the_decisive_gap_after_a_whole_span_goes_to_the
     d = tr.decide(12.0, "change", P, J)
     assert d.changed == "box_mass" and tr.active == "box_mass" and tr.pending is None
     assert tr.ref[0] == pytest.approx(6.0, rel=0.03) and tr.ref[1] == 0.5
+
+
+def test_a_change_whose_lines_tie_within_tie_after_a_whole_span_moves_the_force_and_attributes_neither():
+    """A box heavier than its belief from the start, through 2 mm motion capture: its first change's lines summed
+    over a whole span differed by 1.2 %, and that sign gave the mass's change to the friction. Within TIE the
+    force moves, split in the prior's metric; just past it the lower line takes it, as before."""
+    n = FACTORS.size
+    for gap, changed in ((0.5 * TIE, None), (2 * TIE, "box_friction")):
+        tr = tracker()
+        tr.open(10.0, SPAN)
+        tr.seen = SPAN
+        P = tr.candidates(np.zeros(2))
+        J = cost(P, 4.0, 0.5 * 1.4)  # the force 40 % up, on the friction line
+        J[:n] = J[:n] - J[:n].min() + J[n:].min() / (1 - gap)  # the mass line's best: higher by ``gap``
+        d = tr.decide(12.0, "change", P, J)
+        assert d.changed == changed and tr.pending is None
+        assert tr.ref[0] * tr.ref[1] == pytest.approx(4.0 * 0.7, rel=0.02)
+        if changed is None:
+            assert tr.active is None
+            assert np.log(tr.ref[0] / 4.0) / np.log(tr.ref[1] / 0.5) == pytest.approx(tr.share / (1 - tr.share),
+                                                                                     rel=0.01)
+        else:
+            assert tr.ref == pytest.approx((4.0, 0.7), rel=0.02)
 
 
 def test_locate_places_the_change_where_the_clips_start_to_prefer_a_line_candidate():
