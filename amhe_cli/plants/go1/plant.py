@@ -158,6 +158,7 @@ class Go1Plant(Plant):
         self._mocap_was_ok = True
         self._fresh = True  # the motion capture's freshness as last judged, and when [s]
         self._judged = -np.inf
+        self._stale_why = ""
         self._closed = False
 
     # -- start ------------------------------------------------------------------
@@ -200,9 +201,14 @@ class Go1Plant(Plant):
             latest = (self.poses.latest(s.base_body), self.poses.latest(s.box_body))
             fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
             # poses waiting unread at the socket are this process behind, not the stream: its pose thread,
-            # starved, has not read them yet (CI saw "stale" and "fresh again" 0.08 s into a run, 2 cores
-            # loaded); a stale verdict waits for them to be read
-            if fresh or overdue or not self.poses.unread():
+            # starved, has not read them yet (CI saw "stale" and "fresh again" 0.08 and 0.11 s into a run, 2 cores
+            # loaded, the second where only ticks on time waited); a stale verdict waits for them to be read, on a
+            # tick on time or a second after the last verdict alike: a datagram at the socket is a stream that runs
+            if fresh or not self.poses.unread():
+                if not fresh:  # what the run's log says with it: how old, and how late the tick that judged it
+                    age = min((wall - p.received for p in latest if p is not None), default=np.inf)
+                    self._stale_why = (f"newest pose {age:.2f} s old, judged {1e3 * (wall - now):.0f} ms after "
+                                       f"its relay tick")
                 self._judged = wall
                 self._fresh = fresh
                 self.relay.set_mocap_ok(fresh)
@@ -238,7 +244,7 @@ class Go1Plant(Plant):
             if not started:
                 return  # the start waits for fresh poses itself: its ticks before them are not the run's news
             if fresh != self._mocap_was_ok:
-                self._messages.append("motion capture stale: holding the stand" if not fresh
+                self._messages.append(f"motion capture stale: holding the stand ({self._stale_why})" if not fresh
                                       else "motion capture fresh again")
                 self._mocap_was_ok = fresh
             if q_sent is not None:  # armed: what went out (a dry run sends none: what it would have)
