@@ -250,7 +250,7 @@ def test_a_tick_taken_late_leaves_the_motion_capture_verdict_until_one_on_time_o
     assert relay.verdicts == [False, False] and plant._fresh
     plant.poses.unread = lambda: False  # read, and none since: the stream stopped
     plant._on_tick(time.monotonic() - 0.001, None, None, 0)
-    assert relay.verdicts == [False, False, False] and "newest pose 0.30 s old" in plant._stale_why
+    assert relay.verdicts == [False, False, False] and "newest poses 0.30 s (trunk) and 0.30 s (box) old" in plant._stale_why
 
 
 def test_the_targets_the_relay_process_clamps_are_counted_on_the_planners_side():

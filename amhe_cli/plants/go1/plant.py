@@ -201,14 +201,14 @@ class Go1Plant(Plant):
             latest = (self.poses.latest(s.base_body), self.poses.latest(s.box_body))
             fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
             # poses waiting unread at the socket are this process behind, not the stream: its pose thread,
-            # starved, has not read them yet (CI saw "stale" and "fresh again" 0.08 and 0.11 s into a run, 2 cores
-            # loaded, the second where only ticks on time waited); a stale verdict waits for them to be read, on a
-            # tick on time or a second after the last verdict alike: a datagram at the socket is a stream that runs
+            # starved, has not read them yet (CI saw "stale" and "fresh again" 0.08 s into a run, 2 cores loaded;
+            # and 0.11 s in once ticks on time waited, from a tick a second after the last verdict, which judged
+            # regardless); a stale verdict waits for them to be read: a datagram at the socket is a stream that runs
             if fresh or not self.poses.unread():
-                if not fresh:  # what the run's log says with it: how old, and how late the tick that judged it
-                    age = min((wall - p.received for p in latest if p is not None), default=np.inf)
-                    self._stale_why = (f"newest pose {age:.2f} s old, judged {1e3 * (wall - now):.0f} ms after "
-                                       f"its relay tick")
+                if not fresh:  # what the run's log says with it: how old each body's newest pose, how late the tick
+                    trunk, box = (np.inf if p is None else wall - p.received for p in latest)
+                    self._stale_why = (f"newest poses {trunk:.2f} s (trunk) and {box:.2f} s (box) old, judged "
+                                       f"{1e3 * (wall - now):.0f} ms after its relay tick")
                 self._judged = wall
                 self._fresh = fresh
                 self.relay.set_mocap_ok(fresh)
