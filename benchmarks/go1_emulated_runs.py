@@ -409,11 +409,11 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
     t0_run = float(meta["monotonic_t0"]) if "monotonic_t0" in meta else None
+    if box:  # the truth it started from, where not the task's
+        res["box"] = box
     res["events"] = [{"param": p, "value": v, "t": round(mono - t0_run, 2) if t0_run else None}
                      for p, v, mono in events]
     try:
-        if box:  # the truth it started from, where not the task's
-            res["box"] = box
         res["mhe"] = mhe_errors(recording, get_task(task_name), events, t0_run, box)
     except ImportError:
         raise

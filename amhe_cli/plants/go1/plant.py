@@ -196,8 +196,7 @@ class Go1Plant(Plant):
     def _on_tick(self, now: float, state, q_sent, mode) -> None:
         s = self.settings
         wall = time.monotonic()  # ``now`` is the tick's time: later than it where the ticks are taken late
-        overdue = wall - self._judged > JUDGE_WITHIN
-        if wall - now <= LATE_TICK or overdue:
+        if wall - now <= LATE_TICK or wall - self._judged > JUDGE_WITHIN:
             latest = (self.poses.latest(s.base_body), self.poses.latest(s.box_body))
             fresh = all(p is not None and wall - p.received <= s.safety.mocap_timeout for p in latest)
             # poses waiting unread at the socket are this process behind, not the stream: its pose thread,
@@ -212,9 +211,9 @@ class Go1Plant(Plant):
                 self._judged = wall
                 self._fresh = fresh
                 self.relay.set_mocap_ok(fresh)
-        # else a tick taken late, this process catching up after a stall of its own: its pose thread, stalled as
-        # well, has not yet read the poses that queued meanwhile, and the verdict waits for a tick on time (CI
-        # saw a "motion capture stale" 0.7 s into a run so, gone 4 ms later)
+        # a tick taken late (this process catching up after a stall of its own) judges nothing either: its pose
+        # thread, stalled as well, has not yet read the poses that queued meanwhile, and the verdict waits for a
+        # tick on time (CI saw a "motion capture stale" 0.7 s into a run so, gone 4 ms later)
         fresh = self._fresh
         # every pose that had arrived by this tick, in order: a tick taken late (the relay's process sends them
         # on while this one stalls) sees the poses of its own time, as the relay's thread did
