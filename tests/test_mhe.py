@@ -182,8 +182,10 @@ def test_attribution_reports_the_line_decisions_of_real_rollouts(step_log, monke
 def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_one_gpu_batch(step_log, monkeypatch):
     """On a GPU backend of their own (here a second CPU pool on the GPU path) a decision that seeks its change scores
     the search and its lines in one batch, every candidate on every clip: the lines' costs are those of their clips
-    scored alone. Where the search places the change more than SHIFT from where it sat, the lines' clips (drawn from
-    there) straddle it: they are drawn again from the new place and scored in a second batch."""
+    scored alone. Where the search places the change before where they were drawn from, all of them are kept; where
+    it places it later than their first clip by more than SHIFT, those that start after it (less SHIFT) are kept
+    where they are KEEP of them or more, and only else are the lines drawn again from the new place and scored in
+    a second batch."""
     from amhe_cli.estimation import attribution, mhe as mhe_module
     from amhe_cli.estimation.cost import RolloutCost
     monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
@@ -192,10 +194,15 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
                            prior_std={"box_mass": 0.1, "box_friction": 0.015})
     mu = step_log.meta["truth_series"]["box_friction"]
     t_step = float(step_log.t[np.argmax(mu > 0.45)])
-    t = t_step + 1.5
+    t = t_step + 2.5
     stop = int(np.searchsorted(step_log.t, t, side="right"))
     real_evaluate, real_known, real_join = RolloutCost.evaluate, mhe_module.known_costs, mhe_module.join_clips
-    for shift in (0.0, 3 * attribution.SHIFT):
+    lines = 2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1)
+    # the change placed at the lines' first clip, 1.25 s before it (before where they were drawn from), and SHIFT after the start of their tenth
+    # percentile (most of them kept) and of their thirtieth (too few kept): ``q`` about the share of the lines'
+    # clips that start before the place, less SHIFT
+    for shift, q, kept in ((0.0, 0.0, "all"), (-5 * attribution.SHIFT, 0.0, "all"), (attribution.SHIFT, 0.1, "some"),
+                           (attribution.SHIFT, 0.3, "none")):
         batches, known, parts = [], [], []
         with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, attribute_device="cpu", seed=2)) as mhe:
             mhe.update(step_log, t_step - 1.0)  # the windows' cost, whose W_x the decisions' takes
@@ -203,8 +210,9 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
                 batches.append((len(P), len(self.clips))) if self is mhe._decide_cost else None) or real_evaluate(self, P))
             monkeypatch.setattr(mhe_module, "known_costs", lambda Q, JQ, ev: known.append((Q, JQ)) or real_known(Q, JQ, ev))
             monkeypatch.setattr(mhe_module, "join_clips", lambda traj, sc, *p: parts.extend(p) or real_join(traj, sc, *p))
-            # the search places the change at the first sought clip ``shift`` or more after the lines' first clip
-            at = lambda: int(np.argmax(step_log.t[parts[0].start] >= step_log.t[parts[1].start].min() + shift))  # noqa: E731
+            # the search places the change at the first sought clip ``shift`` or more after the lines' q-quantile start
+            at = lambda: int(np.flatnonzero(step_log.t[parts[0].start] >=  # noqa: E731
+                                            np.quantile(step_log.t[parts[1].start], q) + shift)[0])
             monkeypatch.setattr(mhe_module, "locate", lambda C, held: at())
             tr = mhe.tracker
             for w in np.arange(t_step - 2.0, t + 0.01, 0.5):
@@ -214,14 +222,23 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
             sought, ahead = parts
             placed = tr.pending[0] if tr.pending is not None else tr.decisions[-1].since
             assert placed == pytest.approx(float(step_log.t[sought.start[at()]]))
-            lines = 2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1)
             assert batches[0] == (lines + 1, len(sought) + len(ahead))  # the search and the lines, one batch
             Q, JQ = known[0]
             assert len(Q) == lines
-            if shift == 0.0:
-                assert len(batches) == 1  # nothing more rolled out for the decision
+            after = step_log.t[ahead.start] >= placed - attribution.SHIFT
+            share = after.mean()
+            if kept == "all":
+                first = step_log.t[ahead.start].min()  # (the box rests after the step: they start 0.75 s after it)
+                assert placed < t_step - attribution.SHIFT if shift else placed <= first + attribution.SHIFT
+                assert share == 1.0 and len(batches) == 1  # nothing more rolled out for the decision
                 np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(ahead), Q).data, rtol=1e-9)
-            else:  # drawn again after the new place, a batch of their own
+            elif kept == "some":  # those after the change, their costs from the one batch
+                assert attribution.KEEP <= share < 1.0 and len(batches) == 1
+                assert len(mhe._decide_cost.clips) == after.sum()
+                np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(ahead.subset(after)), Q).data,
+                                           rtol=1e-9)
+            else:  # too few after it: drawn again after the new place, a batch of their own
+                assert share < attribution.KEEP
                 assert batches[1][0] == lines and len(batches) == 2
                 again = mhe._decide_cost.clips
                 assert again is not ahead and step_log.t[again.start].min() >= placed - 1e-9
