@@ -180,7 +180,9 @@ SHIFT = 0.25
 #: T3 grid (an H200, 40 runs) six final decisions drew again, 0.8–1.2 s a job against 0.4–0.7 s, and three of them
 #: reached the planner 0.3–1.4 s past the bound from 3 s; offline (stop 72's noisy T3 recordings) the search placed
 #: the change 0.3–1.2 s past their first clip in 6 of 19 seeking decisions: a quarter of the clips left out (a
-#: reading's ~10 % scatter about 15 % wider) is the price of keeping to one batch.
+#: reading's ~10 % scatter about 15 % wider) is the price of keeping to one batch. A change placed *earlier* than
+#: where they were drawn from still draws them again: kept, the data between were left out, and a false change
+#: placed 2 s early was read from half its span (one of 16 noisy T3 replays 20 % off after the switch, against 7 %).
 KEEP = 0.75
 #: Clips at least that a located change keeps after it.
 LOCATE_MIN = 8

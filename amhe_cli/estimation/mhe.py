@@ -741,12 +741,12 @@ class MovingHorizonEstimator:
         On a GPU backend of their own a decision that seeks its change scores the search (the lines and the split
         held, :data:`LOCATE_CLIPS` clips from :meth:`SplitTracker.search_from`) and its lines (with the points
         between them, :data:`ATTRIBUTION_CLIPS` clips drawn from where the change sat) in one batch, every
-        candidate on every clip, and keeps the costs of the lines' clips that start after where the search places
-        the change, less :data:`~amhe_cli.estimation.attribution.SHIFT` (its jitter between decisions): all of them
-        where it places the change at or before where they were drawn from, else those after it where they are
-        :data:`~amhe_cli.estimation.attribution.KEEP` of them or more (else the lines are scored again on clips drawn
-        from the new place, a second batch; before stop 80 any place earlier by more than ``SHIFT`` or later than
-        their first clip by more drew them again). With two
+        candidate on every clip. Where the search places the change no more than
+        :data:`~amhe_cli.estimation.attribution.SHIFT` (its jitter between decisions) before where they were drawn
+        from, it keeps the costs of the lines' clips that start after the place, less ``SHIFT``, where they are
+        :data:`~amhe_cli.estimation.attribution.KEEP` of them or more; else the lines are scored again on clips drawn
+        from the new place, a second batch (before stop 80 also where it placed the change later than their first
+        clip by more than ``SHIFT``). With two
         dependent batches, each its latency, a final decision waited for a provisional one still running in three
         of 32 emulated T3 runs and reached the planner past 3 s after the switch. *Measured* (docs/evaluation.md
         "One batch a decision"): in 32 emulated T3 runs on an H200 the final decision's job took 0.49 s at the
@@ -769,10 +769,10 @@ class MovingHorizonEstimator:
                     both, (own, after) = join_clips(traj, self.scene, sought, ahead)
                     C = self._decision_cost(both).evaluate(np.vstack([Q, tr.held(base)])).per_clip
                     reason = tr.relocate(float(traj.t[sought.start[locate(C[:len(P), own], C[-1, own])]]))
-                    # the lines' clips that start after the change (within the search's jitter): all of them where
-                    # it sits at or before where they were drawn from; those a later place leaves, where enough do
+                    # the lines' clips that start after the change (within the search's jitter), where enough do and
+                    # it sits no earlier than where they were drawn from (else the data between are not in them)
                     keep = traj.t[ahead.start] >= tr.pending[0] - SHIFT
-                    if keep.sum() >= KEEP * len(ahead):
+                    if tr.pending[0] >= since - SHIFT and keep.sum() >= KEEP * len(ahead):
                         clips, known = ahead.subset(keep), (Q, C[:-1, after[keep]].sum(axis=1))
                 elif sought is not None:
                     C = self._decision_cost(sought).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
