@@ -177,7 +177,7 @@ SHIFT = 0.25
 #: Share of a seeking decision's lines' clips (drawn where its change sat, scored in the search's batch) that must
 #: start after the place the search gives it (less :data:`SHIFT`) for the decision to keep their costs rather than
 #: draw them again from there, a second batch on a GPU (``MovingHorizonEstimator._decide``). In stop 80's emulated
-#: T3 grid (an H200, 40 runs) six final decisions drew again, 0.8–1.2 s a job against 0.4–0.7 s, and three of them
+#: T3 grid (an H200, 40 runs) six final decisions drew again, 0.7–1.2 s a job against 0.4–0.7 s, and three of them
 #: reached the planner 0.3–1.4 s past the bound from 3 s; offline (stop 72's noisy T3 recordings) the search placed
 #: the change 0.3–1.2 s past their first clip in 6 of 19 seeking decisions: a quarter of the clips left out (a
 #: reading's ~10 % scatter about 15 % wider) is the price of keeping to one batch. A change placed *earlier* than
