@@ -204,7 +204,8 @@ class Go1Plant(Plant):
             # and 0.11 s in once ticks on time waited, from a tick a second after the last verdict, which judged
             # regardless); a stale verdict waits for them to be read: a datagram at the socket is a stream that runs
             if fresh or not self.poses.unread():
-                if not fresh:  # what the run's log says with it: how old each body's newest pose, how late the tick
+                if self._fresh and not fresh:  # the verdict turns (not every relay tick while stale): what the
+                    # run's log says with it, how old each body's newest pose, how late the tick
                     trunk, box = (np.inf if p is None else wall - p.received for p in latest)
                     self._stale_why = (f"newest poses {trunk:.2f} s (trunk) and {box:.2f} s (box) old, judged "
                                        f"{1e3 * (wall - now):.0f} ms after its relay tick")
