@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -249,8 +250,17 @@ def test_a_tick_taken_late_leaves_the_motion_capture_verdict_until_one_on_time_o
         plant._on_tick(time.monotonic() - late, None, None, 0)
     assert relay.verdicts == [False, False] and plant._fresh
     plant.poses.unread = lambda: False  # read, and none since: the stream stopped
+    plant._tick_before = time.monotonic() - 0.003  # the relay's tick before, 2 ms before this one
     plant._on_tick(time.monotonic() - 0.001, None, None, 0)
     assert relay.verdicts == [False, False, False] and "newest poses 0.30 s (trunk) and 0.30 s (box) old" in plant._stale_why
+    assert "after the relay's tick before" not in plant._stale_why  # its ticks came on time
+    # the relay's own ticks paused 0.25 s before this verdict: the machine stalled, and the verdict says so (CI saw
+    # a stale verdict 0.08 s into a run, with no state silence and no pose unread)
+    plant._fresh, plant._judged = True, time.monotonic()
+    plant._on_tick(time.monotonic() - 0.25, None, None, 0)  # late: no verdict, but the relay's tick before
+    plant._on_tick(time.monotonic() - 0.001, None, None, 0)
+    assert relay.verdicts[-1] is False
+    assert re.search(r", 2[45][0-9] ms after the relay's tick before$", plant._stale_why), plant._stale_why
 
 
 def test_the_targets_the_relay_process_clamps_are_counted_on_the_planners_side():

@@ -317,9 +317,15 @@ def test_the_online_mhe_never_holds_up_the_planner(emulator, tmp_path):
     assert "soft hold" not in proc.stderr, proc.stderr
     # nor is the start-up wait for the first poses reported as a stale motion capture once the run runs (that
     # bug said so at t = 0.1-0.8 s of every run); a later report, paired with "fresh again", is a real gap in
-    # the emulator's pose stream on a loaded machine, and saying so is the plant's job
-    stale_at = [float(m.group(1)) for m in re.finditer(r"t=([0-9.]+) s: motion capture stale", proc.stderr)]
-    assert not [t for t in stale_at if t < 1.0], proc.stderr
+    # the emulator's pose stream on a loaded machine, and saying so is the plant's job. An early report stands
+    # where the relay's own ticks paused for most of the poses' age: the machine stalled, the emulator with it
+    # (CI: "newest poses 0.11 s (trunk) and 0.11 s (box) old" at t = 0.08 s, no state silence, none unread)
+    for line in proc.stderr.splitlines():
+        said = re.search(r"t=([0-9.]+) s: motion capture stale", line)
+        if said and float(said.group(1)) < 1.0:
+            m = re.search(r"newest poses ([0-9.]+) s \(trunk\) and ([0-9.]+) s \(box\) old.*, ([0-9]+) ms after "
+                          r"the relay's tick before", line)
+            assert m and float(m.group(3)) / 1e3 >= 0.5 * min(map(float, m.group(1, 2))), proc.stderr
     t, _, _ = read_float_arrays(str(out), "/amhe/planner")  # one message per planner cycle
     assert t[-1] > 2.5  # past the MHE's first windows (due from t = 1 s)
     gaps = np.diff(t)

@@ -158,6 +158,7 @@ class Go1Plant(Plant):
         self._mocap_was_ok = True
         self._fresh = True  # the motion capture's freshness as last judged, and when [s]
         self._judged = -np.inf
+        self._tick_before = np.inf  # the relay's tick before this one [s]: none yet
         self._stale_why = ""
         self._closed = False
 
@@ -209,9 +210,15 @@ class Go1Plant(Plant):
                     trunk, box = (np.inf if p is None else wall - p.received for p in latest)
                     self._stale_why = (f"newest poses {trunk:.2f} s (trunk) and {box:.2f} s (box) old, judged "
                                        f"{1e3 * (wall - now):.0f} ms after its relay tick")
+                    # the relay's own ticks paused as long: this machine stalled, every process on it (CI saw a
+                    # stale verdict 0.08 s into a run with no state silence and no pose unread): an emulator or
+                    # a motion capture on this machine paused with it, and the stream was silent as said
+                    if now - self._tick_before > LATE_TICK:
+                        self._stale_why += f", {1e3 * (now - self._tick_before):.0f} ms after the relay's tick before"
                 self._judged = wall
                 self._fresh = fresh
                 self.relay.set_mocap_ok(fresh)
+        self._tick_before = now
         # a tick taken late (this process catching up after a stall of its own) judges nothing either: its pose
         # thread, stalled as well, has not yet read the poses that queued meanwhile, and the verdict waits for a
         # tick on time (CI saw a "motion capture stale" 0.7 s into a run so, gone 4 ms later)
