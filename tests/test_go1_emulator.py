@@ -236,6 +236,34 @@ def test_longest_gap_is_the_emulators_own_stall_not_a_link_loss_fault():
         emu.close()
 
 
+def test_longest_pose_gap_is_the_emulated_world_running_slow_from_the_first_command():
+    """A starved emulator still streams states within the client's watchdog while its poses, at 120 Hz of its own
+    time, fall silent past the client's ``mocap_timeout``: ``longest_pose_gap`` says so (from the first command)."""
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind((LOOP, 0))
+    emu = emulator(pose_to=rx.getsockname())
+    clock = [0.0]
+    emu._clock = lambda: clock[0]
+    try:
+        for _ in range(40):              # no client yet: the world slow (25 ms a tick), no gap counted
+            clock[0] += 0.025
+            emu._tick()
+        assert emu.stats.poses >= 9 and emu.stats.longest_pose_gap == 0.0
+        emu._packet(servo().encode(), rx.getsockname())
+        for _ in range(20):              # on time: a pose every 4-5 ticks of 2 ms
+            clock[0] += 0.002
+            emu._tick()
+        assert emu.stats.longest_pose_gap == pytest.approx(0.010)
+        for _ in range(20):              # 25 ms a tick: states 25 ms apart, poses 100-125 ms
+            clock[0] += 0.025
+            emu._tick()
+        assert emu.stats.longest_gap == pytest.approx(0.025)
+        assert emu.stats.longest_pose_gap == pytest.approx(0.125)
+    finally:
+        rx.close()
+        emu.close()
+
+
 class RefusingSocket:
     """The emulator's socket, whose sends raise while told to (a full send buffer on a loaded host)."""
 

@@ -192,5 +192,6 @@ def go1_cmd(task, host, port, pose_to, pose_latency, pose_noise, base_body, box_
                    f"ignored {st.ignored}, states sent {st.sent} (refused {st.send_failed}), poses {st.poses}, "
                    f"overruns {st.overruns}, "
                    f"longest state gap {st.longest_gap * 1e3:.1f} ms ({emu.scheduling}), "
-                   f"longest command gap {st.longest_command_gap * 1e3:.1f} ms",
+                   f"longest command gap {st.longest_command_gap * 1e3:.1f} ms, "
+                   f"longest pose gap {st.longest_pose_gap * 1e3:.1f} ms",
                    err=True)

@@ -144,6 +144,13 @@ class EmulatorStats:
             LowCmd packets [s], as the robot saw its client (from the first on):
             meanwhile its motors held the last command. A client whose process
             stalls shows here (stop 76: 0.23 s mid-stride in a fall).
+        longest_pose_gap: the longest wall-clock time between two pose datagrams
+            sent [s], from the client's first command on (no ``mocap-drop`` or
+            ``mocap-freeze`` fault active): past the client's ``mocap_timeout``, the
+            emulated world ran that much slower than the clock (a starved
+            emulator still streams states within the state watchdog, its poses
+            at 120 Hz of its own time) or stopped, and a client that then held
+            the stand for stale motion capture did right.
     """
 
     valid: int = 0
@@ -156,6 +163,7 @@ class EmulatorStats:
     ticks: int = 0
     longest_gap: float = 0.0
     longest_command_gap: float = 0.0
+    longest_pose_gap: float = 0.0
 
 
 def motor_torques(cmd: LowCmd | None, q: np.ndarray, dq: np.ndarray, limit: np.ndarray,
@@ -318,6 +326,8 @@ class Go1Emulator:
         self._acc = np.zeros(6)
         self._next_pose = 0.0
         self._last_sent: float | None = None
+        self._last_pose_sent: float | None = None  # when a pose datagram last went out [s, monotonic]
+        self._poses_counted = 0
         self._last_cmd_wall: float | None = None
         self._stop = threading.Event()
         self._thread = None
@@ -569,7 +579,13 @@ class Go1Emulator:
                 frame = self._pose_frame()
             self._poses.send(*frame)
             self._stats.poses += 1
-        self._poses.flush(self._clock())
+        now = self._clock()
+        self._poses.flush(now)
+        if self._poses.sent > self._poses_counted and self._t_first is not None:  # one went out, a client there
+            if self._last_pose_sent is not None and not self._active & {"mocap-drop", "mocap-freeze"}:
+                self._stats.longest_pose_gap = max(self._stats.longest_pose_gap, now - self._last_pose_sent)
+            self._last_pose_sent = now
+        self._poses_counted = self._poses.sent
 
     def _pose_frame(self):
         d = self.data
