@@ -87,6 +87,7 @@ EMULATOR_BOX = re.compile(r", box ((?:box_\w+ [-+0-9.eE]+(?:, )?)+)$")
 EMULATOR_STATS = re.compile(r"overruns (\d+), longest state gap ([0-9.]+) ms")
 EMULATOR_REFUSED = re.compile(r"states sent \d+ \(refused (\d+)\)")
 EMULATOR_COMMANDS = re.compile(r"longest command gap ([0-9.]+) ms")
+EMULATOR_POSES = re.compile(r"longest pose gap ([0-9.]+) ms")
 DEFERRED = re.compile(r"(\d+) MHE updates deferred")
 STEPS = re.compile(r"MHE step budget per candidate: median (\d+)")
 UPDATE_TIME = re.compile(r"MHE updates took a median ([0-9.]+) s")
@@ -360,6 +361,9 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
             commands = EMULATOR_COMMANDS.search(line)
             if commands:  # what the robot saw of its client: the motors hold the last command meanwhile
                 emulator["longest_command_gap_ms"] = float(commands.group(1))
+            poses = EMULATOR_POSES.search(line)
+            if poses:  # its world run slow or stopped: a client's stale motion capture then is the rig's
+                emulator["longest_pose_gap_ms"] = float(poses.group(1))
     try:
         res = json.loads(proc.stdout.strip().splitlines()[-1])
     except (IndexError, json.JSONDecodeError, AttributeError):
