@@ -256,6 +256,36 @@ def test_calibrated_trot_strides_longer_and_stands_still_at_zero():
     assert xr[0] - xr[-1] > x[0] - x[-1]
 
 
+def test_the_trot_steps_sideways_as_asked_and_no_command_changes_nothing():
+    """``Gait.reference``'s ``sideways``: each stance foot slides across under its hip (the abduction turned by
+    asin(y / h)) by the step the calibrated trot asks; zero, or a gait without a sidestep, leaves the reference as
+    it was; open loop in the sim plant the trot walks sideways about as asked, both ways."""
+    trot = GAITS["trot"]
+    assert 0 < trot.sideways_gain < 1  # the servos realise less than the kinematics
+    ts = np.linspace(0.001, trot.duty * trot.period - 0.001, 30)  # FR's stance
+    np.testing.assert_array_equal(trot.reference(ts, v=0.2, sideways=0.0), trot.reference(ts, v=0.2))
+    for name in ("stand", "tripod"):
+        np.testing.assert_array_equal(GAITS[name].reference(ts, sideways=0.1), GAITS[name].reference(ts))
+    ref = trot.reference(ts, v=0.2, sideways=0.1)
+    i = LEGS.index("FR")
+    _, z = foot_xz(ref, "FR")
+    across = -z * np.sin(ref[:, 3 * i])  # the foot's offset across from its hip, the abduction turned
+    assert across[0] - across[-1] == pytest.approx(0.1 / trot.sideways_gain * trot.duty * trot.period, abs=2e-3)
+    from amhe_cli.control.closed_loop import make_plant
+    from amhe_cli.io.quat import quat_to_yaw
+    for asked in (0.1, -0.1):
+        plant = make_plant(get_task("t1", box_start=(9.0, 9.0)), 100.0, 4.0)  # the box out of the way
+        sc = plant.scene
+        for k in range(300):
+            plant.step(trot.reference(k * 0.01, 0.2, 0.0, None, asked))
+            if k == 99:
+                start = plant.data.qpos[sc.base_qpos[:2]].copy(), float(quat_to_yaw(plant.data.qpos[sc.base_qpos[3:]]))
+        moved = plant.data.qpos[sc.base_qpos[:2]] - start[0]
+        heading = 0.5 * (start[1] + float(quat_to_yaw(plant.data.qpos[sc.base_qpos[3:]])))
+        side = (-moved[0] * np.sin(heading) + moved[1] * np.cos(heading)) / 2.0
+        assert 0.6 * abs(asked) < side * np.sign(asked) < 1.4 * abs(asked), side  # 0.087 / −0.079 measured
+
+
 # -- tasks ---------------------------------------------------------------------------
 
 def test_unknown_task():
@@ -298,9 +328,33 @@ def test_push_heading_bends_back_toward_the_push_line():
     right = task.command(box - [back, 0.1], 0.0, box, HALF_DEPTH)
     assert on_line["phase"] == left["phase"] == right["phase"] == "push"
     assert on_line["yaw"] == pytest.approx(0.0)
-    assert left["yaw"] < 0 < right["yaw"]  # steer back to the line, as the trot cannot sidestep
+    assert left["yaw"] < 0 < right["yaw"]  # steer back to the line (and step toward it: the next test)
     assert left["yaw"] == pytest.approx(-right["yaw"])
     np.testing.assert_allclose(left["waypoint"], on_line["waypoint"])  # the pushing pose stays on the line
+
+
+def test_the_push_steps_sideways_back_to_the_push_line():
+    """Off the push line the trot steps back across toward it (``SIDE_GAIN`` per metre, at most ``MAX_SIDEWAYS``);
+    on it, in the approach, or with a gait that has no sidestep (T5's tripod), it asks none. The planner's lateral
+    cost then asks that sideways speed, not zero."""
+    from amhe_cli.control.tasks import MAX_SIDEWAYS, SIDE_GAIN
+    task = get_task("t1")
+    box = np.array(task.box_start)
+    back = HALF_DEPTH + HEAD_REACH
+    assert task.command(box - [back, 0.0], 0.0, box, HALF_DEPTH)["sideways"] == 0.0
+    right = task.command(box - [back, 0.05], 0.0, box, HALF_DEPTH)  # 5 cm right of the line: step left
+    assert right["phase"] == "push" and right["sideways"] == pytest.approx(SIDE_GAIN * 0.05)
+    far_left = task.command(box - [back, -0.3], 0.0, box, HALF_DEPTH)
+    assert far_left["phase"] == "push" and far_left["sideways"] == pytest.approx(-MAX_SIDEWAYS)
+    assert task.command(box + [0.3, 0.8], 0.0, box, HALF_DEPTH).get("sideways", 0.0) == 0.0  # approach
+    t5 = get_task("t5")
+    assert t5.command(np.zeros(2), 0.0, np.array(t5.box_start), HALF_DEPTH, t=1.0).get("sideways", 0.0) == 0.0
+    # the lateral cost: a trunk moving across at the asked speed costs less than one that does not
+    quat, zero3, ref = np.array([1.0, 0, 0, 0]), np.zeros(3), np.array(STAND_JOINTS)
+    pos = np.array([*(box - [back, 0.05]), BASE_HEIGHT])
+    cost = [task.stage_cost(pos, quat, np.array([0.2, vy, 0.0]), zero3, np.array([*box, 0.19]), ref, ref, right)
+            for vy in (0.0, right["sideways"])]
+    assert cost[1] < cost[0]
 
 
 def test_a_robot_past_the_box_walks_back_behind_it():

@@ -783,7 +783,7 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
             speeds.append(float(v[sc.base_qvel[:2]] @ [np.cos(yaw), np.sin(yaw)]))
             cmd_speeds.append(cmd["speed"])
             box_path.append([t, *box_xy])
-            ref0 = gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"))
+            ref0 = gait.reference(t, cmd["speed"], cmd["omega"], cmd.get("reach"), cmd.get("sideways", 0.0))
             # the executed cost J measures the trunk against the waypoint itself (base None), as before the
             # planner's moving reference (Task.waypoint_reference): its figures stay comparable
             costs.append(float(task.stage_cost(q[sc.base_qpos[:3]], q[sc.base_qpos[3:]], v[sc.base_qvel[:3]],

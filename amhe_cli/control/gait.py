@@ -65,6 +65,11 @@ class Gait:
             signed) to realise ``u``. 1 and 0: the kinematic reference.
         turn_gain: realised fraction of a yaw rate after the stride model (feet
             slip sideways when the trunk turns); the reference asks ``ω / turn_gain``.
+        sideways_gain: realised fraction of a commanded sideways speed (the reference asks ``vy / sideways_gain``);
+            0: the gait has no sidestep and ignores one. The trot's 0.57: the raw reference walked 57 % of ±0.1 m/s
+            across (``benchmarks/gait_calibration.py --raw``, kp 100 / kd 4); so calibrated, ±0.1 m/s asked
+            walks +0.087 / −0.079 m/s across at 0.2 m/s forward, turning 0.15 rad/s away (which the heading's
+            feedback takes back).
         body_shift: (2,) trunk offset (x, y) over the planted feet of a standing
             gait [m]. The tripod's: the robot's centre of mass (0.2 cm from the
             trunk origin) lies on the line from FL to RR, the edge of the three
@@ -83,6 +88,7 @@ class Gait:
     stride_deadband: float = 0.0
     turn_gain: float = 1.0
     body_shift: tuple = (0.0, 0.0)
+    sideways_gain: float = 0.0
 
     @property
     def walking(self) -> bool:
@@ -105,8 +111,8 @@ class Gait:
         c = self.contact(t)
         return int(np.dot(c.astype(int), [1, 2, 4, 8]))
 
-    def reference(self, t: np.ndarray | float, v: float = 0.0, omega: float = 0.0, reach: dict | None = None
-                  ) -> np.ndarray:
+    def reference(self, t: np.ndarray | float, v: float = 0.0, omega: float = 0.0, reach: dict | None = None,
+                  sideways: float = 0.0) -> np.ndarray:
         """Joint-position reference at time(s) ``t``.
 
         Args:
@@ -116,6 +122,9 @@ class Gait:
             reach: the free legs' foot path (a task command's ``reach``): ``foot`` (3,)
                 the foot centre at time ``t0`` [s] in the trunk frame [m], moving at
                 ``velocity`` (3,) [m/s]; None: the free legs hold ``free_pose``.
+            sideways: commanded sideways speed of the base [m/s], + left: each stance foot slides across under
+                its hip (its abduction turned by ``asin(y / h)``, h the hip-to-foot height) as it slides back
+                for ``v``, its swing returns it (a gait whose ``sideways_gain`` is 0 has no sidestep).
         Returns:
             (..., 12) joint targets [rad] in GO1_JOINTS order.
         """
@@ -135,6 +144,11 @@ class Gait:
             leg = leg_ik(-x, STAND_HEIGHT - lift)  # (..., 4, 2)
             out[..., 1::3] = leg[..., 0]
             out[..., 2::3] = leg[..., 1]
+            if sideways and self.sideways_gain > 0:
+                width = sideways / self.sideways_gain * self.duty * self.period  # the step across [m]
+                y = np.where(stance, width * (0.5 - s_st),
+                             width * (-0.5 + s_sw - np.sin(2 * np.pi * s_sw) / (2 * np.pi)))
+                out[..., 0::3] += np.arcsin(np.clip(y / (STAND_HEIGHT - lift), -0.5, 0.5))
         if not self.walking and any(self.body_shift):
             for i in range(4):  # planted feet where they stand, the trunk shifted over them
                 foot = leg_fk3(STAND_JOINTS[3 * i:3 * i + 3], np.sign(HIP_POS[i, 1]))
@@ -155,7 +169,7 @@ GAITS = {
     # stride model fitted by benchmarks/gait_calibration.py --raw at kp 100 / kd 4: the raw reference
     # walked 0.58 · (v − 0.12) m/s, 23 % of a 0.2 m/s command
     # and turned 32 % of a commanded yaw rate once the stride model was in
-    "trot": Gait(stride_gain=0.58, stride_deadband=0.12, turn_gain=0.32),
+    "trot": Gait(stride_gain=0.58, stride_deadband=0.12, turn_gain=0.32, sideways_gain=0.57),
     "stand": Gait(name="stand", duty=1.0),
     "tripod": Gait(name="tripod", duty=1.0, free_legs=("FR",), body_shift=(-0.04, 0.05)),
 }

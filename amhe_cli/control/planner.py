@@ -335,7 +335,8 @@ class Planner:
         s = self.settings
         self._shift(t)
         gait = gait or self.gait
-        ref = gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"], cmd.get("reach"))
+        ref = gait.reference(t + np.arange(s.horizon) * s.dt, cmd["speed"], cmd["omega"], cmd.get("reach"),
+                             cmd.get("sideways", 0.0))
         recovering = cmd.get("phase") == "recover"
         if recovering != self._recovering:  # a recovery starts or ends: the last distribution is not a guide
             self._recovering = recovering

@@ -15,7 +15,8 @@ friction), and how a planner scores a rollout:
   push line when the robot is off it (walking tasks);
 * **speed**: squared error of the forward base speed to the commanded speed
   (0.2 m/s, slowing to ``slow_floor`` of it over the last ``slow_radius`` to the goal; 0 for T5);
-  **lateral**: squared sideways base speed;
+  **lateral**: squared error of the sideways base speed to the commanded one (the push's step back
+  toward its line; 0 otherwise);
 * **posture**: base height and tilt; **effort**: joint targets away from the
   gait reference; **fall**: a large cost once the base drops below
   ``fall_height``.
@@ -58,6 +59,12 @@ LINE_TOLERANCE = 0.25
 PHASE_HYSTERESIS = 0.1
 #: Push phase: heading bend back toward the push line per metre of offset [rad/m], and its limit [rad].
 LINE_GAIN, MAX_LINE_BEND = 1.5, 0.35
+#: Push phase: the robot steps sideways toward the push line at this speed per metre of offset [1/s], at most
+#: :data:`MAX_SIDEWAYS` [m/s] (a gait with a sidestep: ``Gait.sideways_gain``). Steering alone did not hold the
+#: line: the head's reaction yawed the trunk away, an off-centre push turned the box, and T3's planner that knew
+#: the box lost it two or more times in 7 of 12 lock-step runs with a 25 ms plan, at the goal in 34.5 s (mean);
+#: with this sidestep 1 of 12, 18.0 s (docs/evaluation.md, "A sidestep holds the push line").
+SIDE_GAIN, MAX_SIDEWAYS = 1.0, 0.1
 #: Approach phase: the pre-push point lies this much behind the pushing pose (and this much more
 #: to the side when going around the box) [m].
 APPROACH_MARGIN = 0.15
@@ -80,7 +87,7 @@ TURN_CLEARANCE = 0.30
 #: the last, at 0.297–0.303 m, and the robot worked round the box for 22 s before it fell.
 CLEAR_HYSTERESIS = 0.05
 #: Approach phase: speed [m/s] of the step away from a box nearer than :data:`TURN_CLEARANCE`, along the
-#: heading (backward where the box is ahead): the trot has no sidestep.
+#: heading (backward where the box is ahead).
 CLEAR_SPEED = 0.15
 #: Push phase: the box's footprint point nearest the trunk's origin this far off its heading [rad] (60°) is
 #: beside the robot, not ahead of its head. More than :data:`TURN_IN_PLACE` off the push heading, such a
@@ -301,8 +308,10 @@ class Task:
           of the push line; coming from the approach (``phase``) it must be
           :data:`PHASE_HYSTERESIS` inside those edges. The waypoint is the pushing
           pose on that line; the heading is ``d``, bent back toward the line by
-          :data:`LINE_GAIN` per metre of offset (the trot has no sidestep, so the
-          robot corrects its offset by steering, as a line follower does). Where
+          :data:`LINE_GAIN` per metre of offset, and a gait with a sidestep steps
+          back across toward it (``sideways``, :data:`SIDE_GAIN` per metre of
+          offset up to :data:`MAX_SIDEWAYS`: steering alone let an off-centre push
+          turn the box away). Where
           the box is beside the robot rather than ahead of its head (its nearest
           point more than :data:`BESIDE` off the heading) and the heading is more
           than :data:`TURN_IN_PLACE` off, it turns on the spot instead (``beside``
@@ -335,7 +344,8 @@ class Task:
             dict with ``target`` (2,) box target, ``direction`` (2,) unit push
             direction, ``waypoint`` (2,) robot waypoint, ``yaw`` desired heading
             [rad], ``speed`` commanded speed [m/s], ``omega`` yaw-rate command
-            for the gait [rad/s], ``box`` (2,) the box now, ``box_speed`` [m/s]
+            for the gait [rad/s], ``sideways`` (push phase) the sideways speed
+            toward the push line for the gait [m/s, + left], ``box`` (2,) the box now, ``box_speed`` [m/s]
             of its reference, ``phase`` ``"push"`` (with ``beside`` True while it turns to face the push) or ``"approach"``
             (``clearing`` True while it steps away from the box before turning), ``base`` (2,) the
             trunk now (where :meth:`waypoint_reference` starts), ``base_yaw`` its heading now [rad]
@@ -385,7 +395,9 @@ class Task:
                 # the approach took turns, 5 times in 10 s in a lock-step T3 run)
                 return self._turn_on_the_spot({**out, "box_speed": 0.0, "beside": True}, base_xy, base_yaw,
                                               box_xy, box_yaw, half_depth, half_width)
-            return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw)}
+            side = float(np.clip(-SIDE_GAIN * lateral, -MAX_SIDEWAYS, MAX_SIDEWAYS)) \
+                if self.gait_spec.sideways_gain > 0 else 0.0
+            return {**out, "speed": self.speed * slow, "omega": _turn(yaw, base_yaw), "sideways": side}
         # approach: to the pre-push point, around the side the robot is on if the box is in the way
         waypoint = box_xy - d * (reach + APPROACH_MARGIN)
         if along > -(rear + PUSH_ZONE[0]):
@@ -510,7 +522,8 @@ class Task:
         heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
         c += w.heading * (1 - np.cos(yaw - self.heading_reference(cmd, tau)))
         c += w.speed * (np.sum(base_vel[..., :2] * heading, axis=-1) - cmd["speed"]) ** 2
-        c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]) ** 2
+        c += w.lateral * (base_vel[..., 1] * heading[..., 0] - base_vel[..., 0] * heading[..., 1]
+                          - cmd.get("sideways", 0.0)) ** 2
         height = base_pos[..., 2] - floor
         c += w.height * (height - BASE_HEIGHT) ** 2 + w.tilt * _tilt(base_quat)
         c += w.angvel * np.sum(base_angvel[..., :2] ** 2, axis=-1)
