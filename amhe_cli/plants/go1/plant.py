@@ -210,9 +210,9 @@ class Go1Plant(Plant):
                     trunk, box = (np.inf if p is None else wall - p.received for p in latest)
                     self._stale_why = (f"newest poses {trunk:.2f} s (trunk) and {box:.2f} s (box) old, judged "
                                        f"{1e3 * (wall - now):.0f} ms after its relay tick")
-                    # the relay's own ticks paused as long: this machine stalled, every process on it (CI saw a
-                    # stale verdict 0.08 s into a run with no state silence and no pose unread): an emulator or
-                    # a motion capture on this machine paused with it, and the stream was silent as said
+                    # the relay's own ticks paused as long: this machine stalled, every process on it; an emulator
+                    # or a motion capture on this machine paused with it, and the stream was silent as said (CI's
+                    # single-tick verdict 0.08-0.09 s into a run had no such pause: docs/evaluation.md, stop 81)
                     if now - self._tick_before > LATE_TICK:
                         self._stale_why += f", {1e3 * (now - self._tick_before):.0f} ms after the relay's tick before"
                 self._judged = wall
