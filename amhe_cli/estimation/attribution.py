@@ -44,7 +44,7 @@ mass held, the changed parameter's line had the lower cost in 16 of 16 draws on 
   the reference and at the friction force moved by ``exp(±CHANGE)`` along either line; two successive tests
   that read it moved the same way open the change, or one that reads it moved by :data:`OPEN`. A change is
   decided provisionally as soon as it opens, with the lines held at the reference before it, and finally at
-  the window whose data after it come nearest :data:`SPAN` seconds; its attributions of one parameter are
+  the window whose data after it come nearest :data:`FINAL` seconds; its attributions of one parameter are
   averaged, weighted by the data each saw. The windows show it a second or two late, so each of its decisions
   for :data:`RELOCATE` seconds seeks it in the data from :data:`BACK` seconds before (:func:`locate`, over the
   clips' own costs) and scores clips drawn afresh from where it lies; a change's decisions add their lines'
@@ -102,6 +102,14 @@ from amhe_cli.estimation.surrogate import parabola_vertex
 
 #: Seconds of informative data (windows where the box moved) a line decision scores.
 SPAN = 2.0
+#: Seconds of informative data after a change on which its final decision is made (:meth:`SplitTracker.due`): the
+#: change's decisions' summed lines, and its readings averaged by their data, over that much. *Measured* offline with
+#: no clock, on four fresh noisy T3 recordings and two T4 (``benchmarks/mhe_accuracy.py``, two seeds on T3): both
+#: bounds from 3 s after the change in 9 of 10 replays on 1.5 s against 8 of 10 on :data:`SPAN`, in them from 1.3 /
+#: 1.5 s after it (median) against 1.8 / 1.9 s; in the emulated loop the final decision on :data:`SPAN` came 3.1–4.2
+#: s after T3's switch in 9 of 64 runs on an H200 with its reading within 10 % (docs/evaluation.md "The final
+#: decision on 1.5 s of data, and no provisional one it would wait for").
+FINAL = 1.5
 #: Seconds of data before an update the estimator needs with ``attribute`` (the span, and rests between).
 LOOKBACK = 4 * SPAN
 #: Multiples of the reference's value scored on each line: evenly in log from a third to three times it.
@@ -219,7 +227,7 @@ class Decision:
         t: time [s] of the update that made it.
         since: start [s] of the data it scored.
         reason: ``change`` (a change is pending: the windows detected it, or a periodic span read a moved
-            force with no decisive line; the final decision, :data:`SPAN` seconds of data after it),
+            force with no decisive line; the final decision, :data:`FINAL` seconds of data after it),
             ``provisional`` (the same, before: as soon as it is pending, and again every :data:`RETRY`
             seconds of data until decisive) or ``period`` (:data:`PERIOD` seconds without a pending change).
         changed: ``box_mass`` or ``box_friction`` where the force moved and the gap (summed over a change's
@@ -308,13 +316,16 @@ class SplitTracker:
         floor: σ floor of the product's window noise, as a share of the prior product.
         window: ``H`` [s] of the windows.
         every: [s] between the windows' updates (``MHESettings.every``): a change's final decision is due at
-            the window whose data after it come nearest :data:`SPAN` (:meth:`due`).
+            the window whose data after it come nearest :data:`FINAL` (:meth:`due`).
 
     Attributes:
         ref: (mass [kg], friction) reported.
         active: the parameter last attributed a change (None before any).
         pending: ``(since, split before)`` of a detected change not yet finally decided, or None.
         decisions: the :class:`Decision` list so far.
+        lead: [s] a line decision takes on the wall clock, where decisions run beside the windows (set by
+            ``MovingHorizonEstimator``; 0 without a clock): no provisional decision is made whose run would
+            still hold the final one up (:meth:`due`).
 
     Raises:
         AmheError: a non-positive prior mass or friction (the metric is taken in logs).
@@ -357,6 +368,7 @@ class SplitTracker:
         self.unchanged = 0  # the pending change's provisional decisions in a row that read the force unchanged
         # (time [s], split before) of the decision that last moved the reference by a change (:data:`MERGE`)
         self.moved: tuple[float, tuple[float, float]] | None = None
+        self.lead = 0.0
 
     def fuse(self, t: float, window_mean: np.ndarray) -> None:
         """Take the informative window (d,) ending at ``t`` [s]: its product feeds the change detection. A
@@ -456,26 +468,24 @@ class SplitTracker:
     @property
     def final_at(self) -> float:
         """Seconds of data after a change from which its final decision is due (:meth:`due`)."""
-        return SPAN - 0.5 * self.every
+        return FINAL - 0.5 * self.every
 
     def due(self) -> tuple[float, str] | None:
         """``(since, reason)`` of the line decision due now (:class:`Decision`), else None.
 
-        A pending change's final decision is due at the window whose data after it come nearest :data:`SPAN`
-        (from ``SPAN − every/2``: :attr:`final_at`), and no provisional one is made where the next window would
-        make the final one due. Due at the first window past :data:`SPAN`, the final decision came on 2.0–2.5 s
-        of data, and on the wall clock it waited for a provisional decision still running (0.18–0.41 s in four
-        of 16 emulated T3 runs on an H200): in three of them the change was first attributed by the final
-        decision, at the planner 3.1–3.7 s after the switch (docs/evaluation.md "The final decision at the span's
-        window"). The first provisional decision was still made there, however late the change opened: in 9 of
-        32 emulated T3 runs on an H200 it took 0.76–1.14 s (two or three batches: it seeks a change opened by a
-        periodic span), the final one waited 0.31–0.62 s for it, and two runs reached the planner past 3 s; its
-        attributions came no sooner than the final one would have without the wait (docs/evaluation.md "One
-        batch a decision")."""
+        A pending change's final decision is due at the window whose data after it come nearest :data:`FINAL`
+        (from ``FINAL − every/2``: :attr:`final_at`), and no provisional one is made whose run would still hold
+        it up: where the next window would make it due, or where :attr:`lead` (a decision's measured time on the
+        wall clock) reaches past it. Due at the first window past :data:`SPAN`, the final decision came on 2.0–2.5
+        s of data, and on the wall clock it waited for a provisional decision still running (0.18–0.41 s in four
+        of 16 emulated T3 runs on an H200). Due at the window nearest :data:`SPAN`, with no provisional decision
+        the window before, it still waited 0.27–0.69 s for one in 7 of 64 emulated T3 runs (provisional decisions
+        that seek their change take 0.76–1.14 s there), and those reached the planner 3.1–4.2 s after the switch
+        with a reading within 10 % (docs/evaluation.md "The sidestep in the emulated loop")."""
         if self.pending is not None:
             if self.seen >= self.final_at - 1e-9:
                 return self.pending[0], "change"
-            if self.seen < self.retry_at - 1e-9 or self.seen + self.every >= self.final_at - 1e-9:
+            if self.seen < self.retry_at - 1e-9 or self.seen + max(self.every, self.lead) >= self.final_at - 1e-9:
                 return None
             return self.pending[0], "provisional"
         if self.since is not None and self.seen >= PERIOD - 1e-9:

@@ -214,6 +214,10 @@ REALTIME_MHE = {"fuse": True}
 FILL_MAX = 4.0
 #: Weight of the latest update in the running estimate of the estimator's speed (``fill``).
 SPEED_EMA = 0.3
+#: Line decisions on their own thread whose longest run is what a change's next provisional decision is taken to
+#: take (:attr:`SplitTracker.lead`): one that would still run when the final one is due is not made. Those that
+#: seek their change took 0.76–1.14 s on an H200, others 0.4–0.7 s (docs/evaluation.md "One batch a decision").
+LEAD_JOBS = 4
 
 
 def rested(idle: float, compute_time: float, duty: float) -> bool:
@@ -698,6 +702,10 @@ class MovingHorizonEstimator:
                     if len(self.tracker.decisions) > recorded else "test")
             self.jobs.append((float(t), t0 - began, time.monotonic() - began,
                               None if n0 is None or n1 is None else n1 - n0, what))
+            if what in ("provisional", "change", "period"):
+                # what the next provisional decision may take: none is made that would hold the final one up
+                took = [e - s for _, s, e, _, w in self.jobs[-LEAD_JOBS * 4:] if w in ("provisional", "change", "period")]
+                self.tracker.lead = max(took[-LEAD_JOBS:])
 
     def _batches(self) -> int | None:
         """Batches the decisions' own backend ran so far (MuJoCo Warp's timing), None where it keeps no count."""
