@@ -83,7 +83,11 @@ nearest :data:`SPAN` (:meth:`SplitTracker.due`), 32 emulated runs on an H200: bo
 session ("The final decision at the span's window"). Those two late changes came from spans whose box moved only where
 a leg alone touched it (:func:`~amhe_cli.estimation.clips.leg_only_touch`): a test or decision over such a span waits
 (:data:`MOVING_MIN`); leaving a leg's clips out of every decision instead cost T3's switch its clips (11 of 16 from
-3 s on an H200; "A leg on the box is not a push").
+3 s on an H200; "A leg on the box is not a push"). With the final decision on :data:`FINAL` (1.5 s) of data and no
+provisional one whose measured run would hold it up (:attr:`SplitTracker.lead`), 48 emulated runs on an H200: both
+bounds from 3 s in 27 of 32 (T3; 25 of 32 on the same seeds before) and 14 of 16 (T4; 15 of 16), in them from 2.1 s
+after T3's switch (median) against 2.6 s; finals that waited for another decision 3 of 38 against 14 of 35 ("The
+final decision on 1.5 s of data, and no provisional one it would wait for").
 
 A change of both at once is attributed to the one whose line explains it better. The reference cannot
 learn a split the prior got wrong unless a change is attributed: ``attribute`` is for a run that starts
@@ -104,11 +108,13 @@ from amhe_cli.estimation.surrogate import parabola_vertex
 SPAN = 2.0
 #: Seconds of informative data after a change on which its final decision is made (:meth:`SplitTracker.due`): the
 #: change's decisions' summed lines, and its readings averaged by their data, over that much. *Measured* offline with
-#: no clock, on four fresh noisy T3 recordings and two T4 (``benchmarks/mhe_accuracy.py``, two seeds on T3): both
-#: bounds from 3 s after the change in 9 of 10 replays on 1.5 s against 8 of 10 on :data:`SPAN`, in them from 1.3 /
-#: 1.5 s after it (median) against 1.8 / 1.9 s; in the emulated loop the final decision on :data:`SPAN` came 3.1–4.2
-#: s after T3's switch in 9 of 64 runs on an H200 with its reading within 10 % (docs/evaluation.md "The final
-#: decision on 1.5 s of data, and no provisional one it would wait for").
+#: no clock (``benchmarks/mhe_accuracy.py``, ``mhe-replay``'s defaults, four fresh noisy T3 recordings and two T4, four
+#: seeds): both bounds from 3 s after the change in 13 of 16 (T3) and 8 of 8 (T4) replays on 1.5 s against 14 of 16
+#: and 8 of 8 on :data:`SPAN`, T4 in them from 1.43 s against 1.62 s (median). In the emulated loop the final decision
+#: on :data:`SPAN` reached the planner 3.1–4.2 s after T3's switch in 9 of 64 runs on an H200 with its reading within
+#: 10 %; on 1.5 s (and :attr:`SplitTracker.lead`) T3 held the bounds from 2.1 s (median) against 2.6 s, its final
+#: mass readings +1.2 ± 4.4 % (docs/evaluation.md "The final decision on 1.5 s of data, and no provisional one it
+#: would wait for").
 FINAL = 1.5
 #: Seconds of data before an update the estimator needs with ``attribute`` (the span, and rests between).
 LOOKBACK = 4 * SPAN

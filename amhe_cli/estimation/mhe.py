@@ -702,9 +702,10 @@ class MovingHorizonEstimator:
                     if len(self.tracker.decisions) > recorded else "test")
             self.jobs.append((float(t), t0 - began, time.monotonic() - began,
                               None if n0 is None or n1 is None else n1 - n0, what))
-            if what in ("provisional", "change", "period"):
+            decisions = ("provisional", "change", "period")
+            if what in decisions:
                 # what the next provisional decision may take: none is made that would hold the final one up
-                took = [e - s for _, s, e, _, w in self.jobs[-LEAD_JOBS * 4:] if w in ("provisional", "change", "period")]
+                took = [e - s for _, s, e, _, w in self.jobs[-LEAD_JOBS * 4:] if w in decisions]
                 self.tracker.lead = max(took[-LEAD_JOBS:])
 
     def _batches(self) -> int | None:
