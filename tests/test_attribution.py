@@ -321,7 +321,7 @@ def test_a_change_s_final_decision_comes_at_the_window_nearest_final_with_no_pro
     0.27–0.69 s for one in 7 of 64 emulated T3 runs on an H200 (those that seek their change take up to 1.1 s
     there), and came 3.1–4.2 s after the switch. It is now due at the window nearest FINAL (1.5 s), and no
     provisional decision is made where the next window, or the decisions' measured run time (``lead``), reaches
-    it (the code before, 2 s and no lead: 0.5 s updates [(1.0, p), (1.5, None), (2.0, change)])."""
+    it (the code before, 2 s and no lead: 0.5 s updates [(0.5, p), (1.0, p), (1.5, None), (2.0, change)])."""
     assert FINAL == 1.5
     expected = {(0.5, 0.0): [(0.5, "provisional"), (1.0, None), (1.5, "change")],
                 (0.25, 0.0): [(0.25, "provisional"), (0.5, None), (0.75, "provisional"), (1.0, None), (1.25, None),
