@@ -26,6 +26,7 @@ from the estimator thread with the live buffer.
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 import warnings
@@ -705,8 +706,8 @@ class MovingHorizonEstimator:
             decisions = ("provisional", "change", "period")
             if what in decisions:
                 # what the next provisional decision may take: none is made that would hold the final one up
-                took = [e - s for _, s, e, _, w in self.jobs[-LEAD_JOBS * 4:] if w in decisions]
-                self.tracker.lead = max(took[-LEAD_JOBS:])
+                runs = (e - s for _, s, e, _, w in reversed(self.jobs) if w in decisions)
+                self.tracker.lead = max(itertools.islice(runs, LEAD_JOBS))
 
     def _batches(self) -> int | None:
         """Batches the decisions' own backend ran so far (MuJoCo Warp's timing), None where it keeps no count."""
