@@ -353,6 +353,8 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     # its measured run (held here) is what the next provisional decision is taken to take: none is made that
     # would still run when its change's final one is due
     assert tr.lead == pytest.approx(max(e - s for _, s, e, _, w in mhe.jobs if w != "test")) and tr.lead > 0
+    # one that seeks its change scores LOCATE_CLIPS clips more: before any such ran, taken to take that much more
+    assert tr.seek_lead == pytest.approx(tr.lead * attribution.SEEK_WORK) and attribution.SEEK_WORK > 2
     assert len(mhe.decision_times) == 1 and mhe.decision_times[0] > 0
     said = mhe.describe_decisions()  # the run's log line (the CPU backend keeps no timing of its own)
     assert said.startswith("MHE line decisions took a median ") and said.endswith("1 decisions, each on a thread "
@@ -379,6 +381,45 @@ def test_a_line_decision_on_its_own_thread_holds_no_window_up_and_reaches_the_lo
     assert mhe.jobs[-1][4] == "failed"
     assert tr.ref == kept and est.poll_decision() is not None and window() is not None
     est.close()
+
+
+def test_a_provisional_decision_that_would_seek_its_change_is_taken_to_take_what_such_decisions_took(monkeypatch):
+    """The lead the tracker holds its provisional decisions to (``SplitTracker.due``): the longest of the last
+    LEAD_JOBS decisions' runs on their own thread (``lead``), and for one that would seek its change the longest of
+    the last LEAD_JOBS that sought theirs (``seek_lead``), before any did ``lead`` × SEEK_WORK: read from the
+    periodic decisions alone, a provisional decision that sought its change ran 0.56 s against a lead of 0.47 s
+    on an H200, and the change's final decision waited for it."""
+    import time
+    from types import SimpleNamespace
+    from amhe_cli.estimation import attribution, mhe as mhe_module
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    mhe = MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1, attribute_device="cpu"))
+    tr = mhe.tracker
+
+    def job(self, traj, stop, t, base, rng, test):  # a decision of ``t``'s kind that takes ``t`` / 50 s
+        reason, sought = kinds[t]
+        time.sleep(t / 50)
+        self._sought = sought
+        self.decision_times.append(t / 50)
+        self.tracker.decisions.append(SimpleNamespace(reason=reason))
+
+    monkeypatch.setattr(MovingHorizonEstimator, "_test_and_decide", job)
+    kinds = {8.0: ("period", False), 4.0: ("period", False), 6.0: ("provisional", True), 3.0: ("change", True),
+             2.0: ("period", False), 1.0: ("period", False), 1.5: ("period", False), 2.5: ("period", False)}
+    expected = []
+    for t in kinds:
+        mhe._run_job(None, 0, t, None, None, False)
+        expected.append((tr.lead, tr.seek_lead))
+    assert [j[4] for j in mhe.jobs] == [reason for reason, _ in kinds.values()]
+    lead, seek = np.array(expected).T
+    assert mhe_module.LEAD_JOBS == 4 and attribution.SEEK_WORK > 2
+    # none sought yet: SEEK_WORK times the lead; then what those that sought took, whatever ran between
+    assert seek[:2] == pytest.approx(attribution.SEEK_WORK * np.array([0.16, 0.16]), abs=0.04)
+    assert seek[2:] == pytest.approx([0.12, 0.12, 0.12, 0.12, 0.12, 0.12], abs=0.015)
+    # the lead: the longest of the last four, the periodic 0.16 s out of them at the fifth
+    assert lead == pytest.approx([0.16, 0.16, 0.16, 0.16, 0.12, 0.12, 0.06, 0.05], abs=0.015)
 
 
 def test_a_window_s_decision_and_change_test_start_with_its_update_beside_the_window_s_solve(step_log, monkeypatch):

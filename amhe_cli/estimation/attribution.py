@@ -178,6 +178,10 @@ QUIET = SPAN
 BACK = SPAN
 #: Clips a decision that locates its change draws (over :data:`BACK` seconds more data than :data:`CLIPS`).
 LOCATE_CLIPS = 48
+#: A decision that seeks its change, in rollouts, as a multiple of one that does not: it scores its lines' candidates
+#: on :data:`LOCATE_CLIPS` clips more than their :data:`CLIPS` (:attr:`SplitTracker.seek_lead` before one ran). On an
+#: H200 such decisions took 0.41–0.84 s in one batch (median 0.54), periodic ones 0.23–0.55 s (0.27): 2.0 measured.
+SEEK_WORK = 1 + LOCATE_CLIPS / CLIPS
 #: Seconds after a change showed during which each of its decisions locates it again, over the data from
 #: :data:`BACK` seconds before it showed, earlier or later than it was placed. Located once, at the update
 #: that opened it, a change sat 1.4 s before a noisy T3 recording's switch (with 0.5 s of data after the
@@ -332,6 +336,9 @@ class SplitTracker:
         lead: [s] a line decision takes on the wall clock, where decisions run beside the windows (set by
             ``MovingHorizonEstimator``; 0 without a clock): no provisional decision is made whose run would
             still hold the final one up (:meth:`due`).
+        seek_lead: [s] the same for a decision that seeks its change (:meth:`search_from`), which scores
+            :data:`LOCATE_CLIPS` clips more: measured from such decisions, before any ran :attr:`lead` ×
+            :data:`SEEK_WORK`.
 
     Raises:
         AmheError: a non-positive prior mass or friction (the metric is taken in logs).
@@ -375,6 +382,7 @@ class SplitTracker:
         # (time [s], split before) of the decision that last moved the reference by a change (:data:`MERGE`)
         self.moved: tuple[float, tuple[float, float]] | None = None
         self.lead = 0.0
+        self.seek_lead = 0.0
 
     def fuse(self, t: float, window_mean: np.ndarray) -> None:
         """Take the informative window (d,) ending at ``t`` [s]: its product feeds the change detection. A
@@ -482,7 +490,7 @@ class SplitTracker:
         A pending change's final decision is due at the window whose data after it come nearest :data:`FINAL`
         (from ``FINAL − every/2``: :attr:`final_at`), and no provisional one is made whose run would still hold
         it up: where the next window would make it due, or where :attr:`lead` (a decision's measured time on the
-        wall clock) reaches past it. Due at the first window past :data:`SPAN`, the final decision came on 2.0–2.5
+        wall clock; :attr:`seek_lead` for one that would seek its change) reaches past it. Due at the first window past :data:`SPAN`, the final decision came on 2.0–2.5
         s of data, and on the wall clock it waited for a provisional decision still running (0.18–0.41 s in four
         of 16 emulated T3 runs on an H200). Due at the window nearest :data:`SPAN`, with no provisional decision
         the window before, it still waited 0.27–0.69 s for one in 7 of 64 emulated T3 runs (provisional decisions
@@ -491,7 +499,8 @@ class SplitTracker:
         if self.pending is not None:
             if self.seen >= self.final_at - 1e-9:
                 return self.pending[0], "change"
-            if self.seen < self.retry_at - 1e-9 or self.seen + max(self.every, self.lead) >= self.final_at - 1e-9:
+            lead = self.seek_lead if self.search_from("provisional") is not None else self.lead
+            if self.seen < self.retry_at - 1e-9 or self.seen + max(self.every, lead) >= self.final_at - 1e-9:
                 return None
             return self.pending[0], "provisional"
         if self.since is not None and self.seen >= PERIOD - 1e-9:

@@ -26,7 +26,6 @@ from the estimator thread with the live buffer.
 
 from __future__ import annotations
 
-import itertools
 import threading
 import time
 import warnings
@@ -35,7 +34,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
-                                             KEEP, NAMES as SPLIT_NAMES, SHIFT, TEST_CLIPS, SplitTracker, locate)
+                                             KEEP, NAMES as SPLIT_NAMES, SEEK_WORK, SHIFT, TEST_CLIPS, SplitTracker,
+                                             locate)
 from amhe_cli.estimation.clips import ClipsHeld, join_clips, legs_hold, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
 from amhe_cli.estimation.fusion import WindowFusion
@@ -216,8 +216,10 @@ FILL_MAX = 4.0
 #: Weight of the latest update in the running estimate of the estimator's speed (``fill``).
 SPEED_EMA = 0.3
 #: Line decisions on their own thread whose longest run is what a change's next provisional decision is taken to
-#: take (:attr:`SplitTracker.lead`): one that would still run when the final one is due is not made. Those that
-#: seek their change took 0.76–1.14 s on an H200, others 0.4–0.7 s (docs/evaluation.md "One batch a decision").
+#: take (:attr:`SplitTracker.lead`; of those that sought their change, :attr:`SplitTracker.seek_lead`): one that
+#: would still run when the final one is due is not made. Those that seek their change took 0.41–1.13 s on an H200,
+#: periodic ones 0.23–0.55 s (docs/evaluation.md "The final decision on 1.5 s of data"): read from the periodic
+#: ones, a provisional decision that sought its change ran 0.56 s against a lead of 0.47 s, and the final one waited.
 LEAD_JOBS = 4
 
 
@@ -405,6 +407,8 @@ class MovingHorizonEstimator:
         self._queued: list[tuple[float, np.ndarray, Trajectory, int, bool]] = []
         self._began: dict[float, float] = {}  # time.monotonic() at which the update of each recent window began
         self.jobs: list[tuple[float, float, float, int | None, str]] = []
+        self._runs: list[tuple[float, bool]] = []  # each decision's run [s] on its own thread, and whether it sought
+        self._sought = False  # the decision of the job running now sought its change (:meth:`_decide`)
         self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
         self._lock = threading.Lock()
         self._reported: tuple[tuple[float, float], tuple[float, float]] | None = None  # (mass, μ), their σ
@@ -687,6 +691,7 @@ class MovingHorizonEstimator:
         was made or failed, not for a test alone), and when it ran goes to :attr:`jobs`."""
         made, recorded = len(self.decision_times), len(self.tracker.decisions)
         t0, n0 = time.monotonic(), self._batches()
+        self._sought = False
         failed = False
         try:
             self._test_and_decide(traj, stop, t, base, rng, test)
@@ -703,11 +708,13 @@ class MovingHorizonEstimator:
                     if len(self.tracker.decisions) > recorded else "test")
             self.jobs.append((float(t), t0 - began, time.monotonic() - began,
                               None if n0 is None or n1 is None else n1 - n0, what))
-            decisions = ("provisional", "change", "period")
-            if what in decisions:
+            if what in ("provisional", "change", "period"):
                 # what the next provisional decision may take: none is made that would hold the final one up
-                runs = (e - s for _, s, e, _, w in reversed(self.jobs) if w in decisions)
-                self.tracker.lead = max(itertools.islice(runs, LEAD_JOBS))
+                self._runs.append((self.jobs[-1][2] - self.jobs[-1][1], self._sought))
+                tr = self.tracker
+                tr.lead = max(run for run, _ in self._runs[-LEAD_JOBS:])
+                seeking = [run for run, sought in reversed(self._runs) if sought][:LEAD_JOBS]
+                tr.seek_lead = max(seeking) if seeking else tr.lead * SEEK_WORK
 
     def _batches(self) -> int | None:
         """Batches the decisions' own backend ran so far (MuJoCo Warp's timing), None where it keeps no count."""
@@ -766,6 +773,7 @@ class MovingHorizonEstimator:
         tr = self.tracker
         try:
             start = tr.search_from(reason) if seek else None
+            self._sought = start is not None
             known = None  # (Q, the costs of Q on ``clips``) where the seeking batch scored the lines already
             if start is not None:
                 # the change sought in the data from before it showed (:func:`locate`), then decided on clips
