@@ -946,7 +946,7 @@ def test_the_wall_clocks_planner_and_mhe_differ_from_lock_steps_and_a_config_sti
     assert not mine.mhe.fuse and mine.mhe.max_steps == 300
 
 
-def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_updates():
+def test_the_mhe_shares_a_core_or_takes_its_own_its_duty_limit_defers_updates_and_it_builds_its_data_off_the_loop():
     """``mhe_cores`` below 1 keeps the planner on every CPU and holds the estimator thread to that share
     of one core; whole cores go to the MHE and off the planner; one that leaves the planner nothing is
     refused; the lock-step sim and modes without an MHE ignore it."""
@@ -991,6 +991,26 @@ def test_the_mhe_shares_a_core_or_takes_its_own_and_its_duty_limit_defers_update
     assert thread.rested(1.0) and not thread.rested(0.5)  # at half a core it idles as long as it worked
     time.sleep(0.25)
     assert thread.rested(0.5)
+    # data given as a callable (a robot plant's recording, resampled: 50 ms for 8 s of a Go1 run here) are built on
+    # the estimator's thread, not the control loop's; a failure there is the update's, reported, the loop unharmed
+    built, t0 = [], time.monotonic()
+
+    import threading
+
+    def data():
+        time.sleep(0.3)
+        built.append(threading.current_thread().name)
+        return None
+
+    assert thread.submit(data, 2.0) and time.monotonic() - t0 < 0.15 and not built
+    assert thread.poll(wait=True).t == 2.0 and built == ["amhe-mhe"]
+
+    def lost():
+        raise RuntimeError("recording gone")
+
+    time.sleep(0.25)
+    assert thread.submit(lost, 2.5) and thread.poll(wait=True) is None
+    assert [e for e in thread.take_errors() if "MHE update failed (RuntimeError: recording gone)" in e]
     thread.close()
 
 

@@ -48,6 +48,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from functools import partial
 from typing import Callable
 
 import numpy as np
@@ -143,15 +144,21 @@ class EstimatorThread:
         share of wall time at most ``duty`` (0 < duty <= 1)."""
         return not self.busy and mhe_rested(time.monotonic() - self.finished_at, self.compute_time, duty)
 
-    def submit(self, traj: Trajectory, t: float) -> bool:
-        """Start an update over ``traj`` up to ``t`` [s]; False (nothing started) while one still runs."""
+    def submit(self, traj: "Trajectory | Callable[[], Trajectory]", t: float) -> bool:
+        """Start an update over ``traj`` up to ``t`` [s]; False (nothing started) while one still runs.
+
+        ``traj`` may be a callable that gives the data: it is then called on the estimator's thread, not the
+        caller's (a robot plant's :meth:`~amhe_cli.plants.base.Plant.trajectory` resamples and smooths the
+        motion capture of the span the line decisions read, 50 ms for 8 s of a Go1 run on this project's 2-core
+        machine, every update: on the control loop, a planning cycle lost twice a second). A failure there is
+        an update's failure (:attr:`errors`)."""
         if self.busy:
             return False
 
         def work():
             t0 = time.monotonic()
             try:
-                res = self.mhe.update(traj, t)
+                res = self.mhe.update(traj() if callable(traj) else traj, t)
             except Exception as exc:  # noqa: BLE001 - the controller must survive any estimator failure
                 with self._lock:
                     self.errors.append(f"t={t:.2f} s: MHE update failed ({type(exc).__name__}: {exc}); "
@@ -836,7 +843,9 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     # core share comes first); the lock-step loop waited for it above: submit never finds it busy
                     if clocked and not estimator.rested(mhe_duty):
                         mhe_deferred += 1
-                    elif estimator.submit(plant.trajectory(last=estimator.mhe.lookback + 0.01), now):
+                    elif estimator.submit(partial(plant.trajectory, last=estimator.mhe.lookback + 0.01)
+                                          if clocked and plant.concurrent_trajectory
+                                          else plant.trajectory(last=estimator.mhe.lookback + 0.01), now):
                         pending = True
                     next_update += s.mhe.every
             if read_on:

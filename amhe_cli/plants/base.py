@@ -61,6 +61,9 @@ class Plant(ABC):
             nobody knows them (a real robot).
         armed: the plan's targets reach the motors. False for a robot's dry
             run (damping only: it lies down, so a "fall" ends nothing).
+        concurrent_trajectory: :meth:`trajectory` may be called from another thread while the plant runs
+            (it copies what it reads under a lock of its own): on the wall clock the online MHE then builds
+            its data on its own thread, off the control loop. False (default) for a plant the loop steps.
     """
 
     scene: Scene
@@ -68,6 +71,7 @@ class Plant(ABC):
     realtime: bool
     truth_values: dict | None
     armed: bool = True
+    concurrent_trajectory: bool = False
 
     @abstractmethod
     def measure(self) -> Measurement:

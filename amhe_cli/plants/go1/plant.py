@@ -123,6 +123,7 @@ class Go1Plant(Plant):
 
     realtime = True
     truth_values = None
+    concurrent_trajectory = True  # the recording is copied under ``_lock``, then resampled outside it
 
     def __init__(self, scene: Scene, settings: Go1Settings, link=None, poses=None):
         from amhe_cli.plants.go1.mocap import open_pose_source
