@@ -949,7 +949,8 @@ def test_the_wall_clocks_planner_and_mhe_differ_from_lock_steps_and_a_config_sti
 def test_the_mhe_shares_a_core_or_takes_its_own_its_duty_limit_defers_updates_and_it_builds_its_data_off_the_loop():
     """``mhe_cores`` below 1 keeps the planner on every CPU and holds the estimator thread to that share
     of one core; whole cores go to the MHE and off the planner; one that leaves the planner nothing is
-    refused; the lock-step sim and modes without an MHE ignore it."""
+    refused; the lock-step sim and modes without an MHE ignore it. Data given as a callable (a robot plant's
+    recording) are built on the estimator's thread, not the control loop's."""
     wall = dict(mode="adaptive")
     assert core_split(RunSettings(**wall), clocked=True, cpus=OWN_CORE_FROM - 1) == (None, 1, MHE_DUTY)
     assert core_split(RunSettings(**wall), clocked=True, cpus=OWN_CORE_FROM) == (OWN_CORE_FROM - 1, 1, 1.0)
@@ -993,9 +994,8 @@ def test_the_mhe_shares_a_core_or_takes_its_own_its_duty_limit_defers_updates_an
     assert thread.rested(0.5)
     # data given as a callable (a robot plant's recording, resampled: 50 ms for 8 s of a Go1 run here) are built on
     # the estimator's thread, not the control loop's; a failure there is the update's, reported, the loop unharmed
-    built, t0 = [], time.monotonic()
-
     import threading
+    built, t0 = [], time.monotonic()
 
     def data():
         time.sleep(0.3)
@@ -1008,7 +1008,6 @@ def test_the_mhe_shares_a_core_or_takes_its_own_its_duty_limit_defers_updates_an
     def lost():
         raise RuntimeError("recording gone")
 
-    time.sleep(0.25)
     assert thread.submit(lost, 2.5) and thread.poll(wait=True) is None
     assert [e for e in thread.take_errors() if "MHE update failed (RuntimeError: recording gone)" in e]
     thread.close()
