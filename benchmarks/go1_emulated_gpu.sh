@@ -9,6 +9,8 @@
 # Usage (amhe's dependencies and amhe[gpu] importable, run from the repository's root; BELIEFS holds one
 # starting belief per task, TASK.belief.yaml, e.g. from `amhe probe --target sim`):
 #     OUT=results BELIEFS=dir benchmarks/go1_emulated_gpu.sh t3,t4 SEEDS [FIRST_SEED] [more go1_emulated_runs.py args]
+# EXTRA_CONFIG adds lines to the runs' config: EXTRA_CONFIG='mhe_shadow: true' ... --label shadow runs the same
+# client with its estimates only recorded (the planner keeps the belief): the estimator's load without its belief.
 # Detached (`setsid`), it outlives the command that started it, so a later command can wait for its rows.
 # The recordings worth reading (falls, trips, changes held after 3 s; at most 4) are copied to $OUT/kept, each with
 # its last 10 s as NAME.tail.mcap (a few MB: a whole recording can be over what a lent host sends back), a
@@ -21,7 +23,7 @@ here=$(cd "$(dirname "$0")" && pwd)
 tasks=$1; seeds=$2; first=${3:-0}; shift $(( $# < 3 ? $# : 3 ))
 mkdir -p "$OUT/recordings"
 config="$OUT/attr.yaml"
-printf 'mhe: {attribute: true, attribute_device: cuda}\nmhe_cores: 2\n' > "$config"
+printf 'mhe: {attribute: true, attribute_device: cuda}\nmhe_cores: 2\n%s\n' "${EXTRA_CONFIG:-}" > "$config"
 first_task=${tasks%%,*}
 t0=$(date +%s)
 # a second of the wall-clock loop in the sim loads the decisions' backend before it (MovingHorizonEstimator.warm):

@@ -22,7 +22,9 @@ fall-reflex recovery,
 ``mhe_decision_s`` the median wall time [s] of its line decisions (``mhe: {attribute: true}``) and
 ``mhe_decision_batches`` where their GPU backend spent its time (batches, steps, fields, read-back [s]),
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
-``mhe_failed`` its updates that raised, ``stalls`` [t, s] of each stall of the client's process in its loop past
+``mhe_failed`` its updates that raised, ``plan_interval_ms`` [median, 90th, 99th percentile, longest] of the
+time between the planner's plans and ``plan_compute_ms`` [median, 90th, 99th] of their compute (``/amhe/planner``:
+what the rest of the client, an estimator's work on its control loop, costs the planner's cycle), ``stalls`` [t, s] of each stall of the client's process in its loop past
 0.15 s (every thread's stack at each stall, the set-up's too, in the recording's ``.stalls.txt``, gathered into
 ``--keep``'s ``stalls.txt``); each ``mhe`` segment after a change holds ``within_after_s``, the seconds after the
 change from which every estimate held both bounds, None where the last did not,
@@ -191,6 +193,18 @@ def mhe_errors(recording: str, task, events: list[tuple], t0: float | None, box:
                             for j in near]
         out.append(row)
     return out
+
+
+def plan_timing(recording: str) -> dict:
+    """``plan_interval_ms`` and ``plan_compute_ms`` of a run's recording (the module doc), rounded to 0.1 ms; {}
+    where it holds fewer than two plans (a run that ended at its start)."""
+    t, v, labels = read_float_arrays(recording, "/amhe/planner")
+    if len(t) < 2:
+        return {}
+    gaps = 1e3 * np.diff(np.asarray(t, dtype=float))
+    compute = v[:, labels.index("compute_ms")]
+    return {"plan_interval_ms": [round(float(x), 1) for x in (*np.percentile(gaps, [50, 90, 99]), gaps.max())],
+            "plan_compute_ms": [round(float(x), 1) for x in np.percentile(compute, [50, 90, 99])]}
 
 
 def attribution_latency(row: dict) -> None:
@@ -412,6 +426,12 @@ def one_run(task_name: str, mode: str, seed: int, args, cores: tuple[list[int], 
     meta = records.get("amhe_run", {})
     if "control_hz" in meta:
         res["control_hz"] = round(float(meta["control_hz"]), 1)
+    try:
+        res.update(plan_timing(recording))
+    except ImportError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - no plans recorded: the row says why
+        res["plan_timing_error"] = f"{type(exc).__name__}: {exc}"
     t0_run = float(meta["monotonic_t0"]) if "monotonic_t0" in meta else None
     if box:  # the truth it started from, where not the task's
         res["box"] = box

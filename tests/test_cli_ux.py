@@ -369,6 +369,26 @@ def test_the_emulated_grid_says_how_much_data_a_change_took_and_how_long_its_spl
     assert row["mhe"][1]["attributed_s"] == 1.52 and row["mhe"][1]["to_planner_s"] is None
 
 
+def test_the_emulated_grid_states_the_planner_s_cycle_from_the_run_s_recording(emulated_grid, tmp_path):
+    """A row's ``plan_interval_ms`` (the time between plans, where an estimator's work on the control loop shows
+    as cycles lost) and ``plan_compute_ms``, read from the recording's ``/amhe/planner``; none where it holds fewer
+    than two plans."""
+    from test_io import make_traj  # a short synthetic log to carry the topic
+    from amhe_cli.io.writer import write_mcap
+    traj = make_traj()
+    t = np.r_[0.03 * np.arange(34), 1.06, 1.11]  # 34 plans 30 ms apart, then one 70 ms late, one more 50 ms on
+    compute = np.r_[np.full(34, 20.0), 65.0, 25.0]
+    plans = np.column_stack([1e3 / np.r_[30.0, np.diff(t) * 1e3], compute, np.zeros(36), np.zeros(36)])
+    path = write_mcap(tmp_path / "run.mcap", traj, extra=[("/amhe/planner", t, plans,
+                                                            ["rate_hz", "compute_ms", "lead_ms", "forecast_tilt_deg"])])
+    got = emulated_grid.plan_timing(str(path))
+    assert got["plan_interval_ms"][0] == pytest.approx(30.0) and got["plan_interval_ms"][3] == pytest.approx(70.0)
+    assert got["plan_compute_ms"][0] == pytest.approx(20.0) and 20.0 < got["plan_compute_ms"][2] <= 65.0
+    short = write_mcap(tmp_path / "short.mcap", traj, extra=[("/amhe/planner", t[:1], plans[:1],
+                                                              ["rate_hz", "compute_ms", "lead_ms", "forecast_tilt_deg"])])
+    assert emulated_grid.plan_timing(str(short)) == {}
+
+
 def test_the_emulated_grid_judges_the_estimates_against_the_box_the_emulator_says_it_plays(emulated_grid):
     """``--emulator-args='--box …'``: the emulator's first line names its box, and the rows' errors are measured
     against it, not the task's (a robot-box friction named before it is not the box's)."""
