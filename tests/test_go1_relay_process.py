@@ -81,7 +81,7 @@ def standing(robot: Robot, kind: str = "process"):
         relay = Relay(link, SafetyLayer(settings()), 100, 4, planner_period=5.0)
     relay.start()
     try:
-        assert relay.wait_ready(10.0)
+        assert relay.wait_ready(10.0), (relay.alive(), relay.take_messages())  # why not, where it was not
         relay.set_plan(np.tile(STAND_JOINTS, (1000, 1)), 0.01, time.monotonic())
         time.sleep(0.2)
         yield relay
@@ -126,7 +126,7 @@ def test_the_relay_process_damps_the_robot_when_the_planners_process_dies():
             link = LowLevelLink(("127.0.0.1", {robot.port}), 0)
             relay = RelayProcess(link, SafetySettings(ramp_time=0.1), 100, 4, planner_period=5.0)
             relay.start()
-            assert relay.wait_ready(10.0)
+            assert relay.wait_ready(10.0), (relay.alive(), relay.take_messages())
             relay.set_plan(np.tile(STAND_JOINTS, (1000, 1)), 0.01, time.monotonic())
             time.sleep(0.3)
             print(time.monotonic(), flush=True)
