@@ -24,10 +24,11 @@ fall-reflex recovery,
 ``mhe_attributed`` [t, decision, parameter, value] of each change the MHE attributed (``mhe: {attribute: true}``),
 ``mhe_failed`` its updates that raised, ``plan_interval_ms`` [median, 90th, 99th percentile, longest] of the
 time between the planner's plans and ``plan_compute_ms`` [median, 90th, 99th] of their compute (``/amhe/planner``:
-what the rest of the client, an estimator's work on its control loop, costs the planner's cycle), ``stalls`` [t, s] of each stall of the client's process in its loop past
-0.15 s (every thread's stack at each stall, the set-up's too, in the recording's ``.stalls.txt``, gathered into
-``--keep``'s ``stalls.txt``); each ``mhe`` segment after a change holds ``within_after_s``, the seconds after the
-change from which every estimate held both bounds, None where the last did not,
+what the rest of the client, an estimator's work on its control loop, costs the planner's cycle), ``stalls`` [t, s]
+of each stall of the client's process in its loop past 0.15 s (every thread's stack at each stall, the set-up's
+too, in the recording's ``.stalls.txt``, gathered into ``--keep``'s ``stalls.txt``); each ``mhe`` segment after a
+change holds ``within_after_s``, the seconds after the change from which every estimate held both bounds, None where
+the last did not,
 ``swaps`` [s after the change, kg, μ] of each estimate the planner was given over its first ``SWAPS_AFTER`` s,
 and ``attributed_s`` / ``to_planner_s``, the data after the change at its first attribution and the seconds from
 there to the planner (:func:`attribution_latency`)), then one row per (task, mode):

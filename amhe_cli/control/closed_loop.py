@@ -843,10 +843,11 @@ def run_task(task: Task, belief: Belief | None, settings: RunSettings | None = N
                     # core share comes first); the lock-step loop waited for it above: submit never finds it busy
                     if clocked and not estimator.rested(mhe_duty):
                         mhe_deferred += 1
-                    elif estimator.submit(partial(plant.trajectory, last=estimator.mhe.lookback + 0.01)
-                                          if clocked and plant.concurrent_trajectory
-                                          else plant.trajectory(last=estimator.mhe.lookback + 0.01), now):
-                        pending = True
+                    else:
+                        data = partial(plant.trajectory, last=estimator.mhe.lookback + 0.01)
+                        # a plant safe beside its run is read on the estimator's thread, off this loop
+                        if estimator.submit(data if clocked and plant.concurrent_trajectory else data(), now):
+                            pending = True
                     next_update += s.mhe.every
             if read_on:
                 if reading is not None and reading.done():

@@ -492,10 +492,11 @@ class SplitTracker:
         it up: where the next window would make it due, or where :attr:`lead` (a decision's measured time on the
         wall clock; :attr:`seek_lead` for one that would seek its change) reaches past it. Due at the first window
         past :data:`SPAN`, the final decision came on 2.0–2.5 s of data, and on the wall clock it waited for a
-        provisional decision still running (0.18–0.41 s in four of 16 emulated T3 runs on an H200). Due at the window nearest :data:`SPAN`, with no provisional decision
-        the window before, it still waited 0.27–0.69 s for one in 7 of 64 emulated T3 runs (provisional decisions
-        that seek their change take 0.76–1.14 s there), and those reached the planner 3.1–4.2 s after the switch
-        with a reading within 10 % (docs/evaluation.md "The sidestep in the emulated loop")."""
+        provisional decision still running (0.18–0.41 s in four of 16 emulated T3 runs on an H200). Due at the
+        window nearest :data:`SPAN`, with no provisional decision the window before, it still waited 0.27–0.69 s
+        for one in 7 of 64 emulated T3 runs (provisional decisions that seek their change take 0.76–1.14 s there),
+        and those reached the planner 3.1–4.2 s after the switch with a reading within 10 % (docs/evaluation.md
+        "The sidestep in the emulated loop")."""
         if self.pending is not None:
             if self.seen >= self.final_at - 1e-9:
                 return self.pending[0], "change"

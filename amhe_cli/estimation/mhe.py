@@ -706,11 +706,11 @@ class MovingHorizonEstimator:
             n1 = self._batches()
             what = ("failed" if failed else self.tracker.decisions[-1].reason
                     if len(self.tracker.decisions) > recorded else "test")
-            self.jobs.append((float(t), t0 - began, time.monotonic() - began,
-                              None if n0 is None or n1 is None else n1 - n0, what))
+            ended = time.monotonic()
+            self.jobs.append((float(t), t0 - began, ended - began, None if n0 is None or n1 is None else n1 - n0, what))
             if what in ("provisional", "change", "period"):
                 # what the next provisional decision may take: none is made that would hold the final one up
-                self._runs.append((self.jobs[-1][2] - self.jobs[-1][1], self._sought))
+                self._runs.append((ended - t0, self._sought))
                 tr = self.tracker
                 tr.lead = max(run for run, _ in self._runs[-LEAD_JOBS:])
                 seeking = [run for run, sought in reversed(self._runs) if sought][:LEAD_JOBS]
