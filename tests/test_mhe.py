@@ -183,9 +183,9 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
     """On a GPU backend of their own (here a second CPU pool on the GPU path) a decision that seeks its change scores
     the search and its lines in one batch, every candidate on every clip: the lines' costs are those of their clips
     scored alone. Where the search places the change later than their first clip by more than SHIFT, those that
-    start after it (less SHIFT) are kept where they are KEEP of them or more; where fewer, or where it places the
-    change more than SHIFT before where they were drawn from (the data between are not in them), the lines are
-    drawn again from the new place and scored in a second batch."""
+    start after it (less SHIFT) are kept where they are KEEP of them or more, else the lines are drawn again from the
+    new place and scored in a second batch; where it places the change more than SHIFT before where they were drawn
+    from, the search's own clips that start between join them (the data between), still one batch."""
     from amhe_cli.estimation import attribution, mhe as mhe_module
     from amhe_cli.estimation.cost import RolloutCost
     monkeypatch.setattr(MovingHorizonEstimator, "_decide_on_gpu", property(lambda self: True))
@@ -198,11 +198,11 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
     stop = int(np.searchsorted(step_log.t, t, side="right"))
     real_evaluate, real_known, real_join = RolloutCost.evaluate, mhe_module.known_costs, mhe_module.join_clips
     lines = 2 * attribution.FACTORS.size + 4 * (attribution.FACTORS.size - 1)
-    # the change placed at the lines' first clip, 1.25 s before it (before where they were drawn from: drawn again),
-    # and SHIFT after the start of their tenth percentile (most of them kept) and of their thirtieth (too few kept):
-    # ``q`` about the share of the lines' clips that start before the place, less SHIFT
-    for shift, q, kept in ((0.0, 0.0, "all"), (-5 * attribution.SHIFT, 0.0, "none"), (attribution.SHIFT, 0.1, "some"),
-                           (attribution.SHIFT, 0.3, "none")):
+    # the change placed at the lines' first clip, 1.25 s before it (before where they were drawn from: the search's
+    # clips between join them), and SHIFT after the start of their tenth percentile (most of them kept) and of their
+    # thirtieth (too few kept): ``q`` about the share of the lines' clips that start before the place, less SHIFT
+    for shift, q, kept in ((0.0, 0.0, "all"), (-5 * attribution.SHIFT, 0.0, "between"),
+                           (attribution.SHIFT, 0.1, "some"), (attribution.SHIFT, 0.3, "none")):
         batches, known, parts = [], [], []
         with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, attribute_device="cpu", seed=2)) as mhe:
             mhe.update(step_log, t_step - 1.0)  # the windows' cost, whose W_x the decisions' takes
@@ -237,8 +237,17 @@ def test_a_decision_that_seeks_its_change_rolls_the_search_and_its_lines_out_in_
                 assert len(mhe._decide_cost.clips) == after.sum()
                 np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(ahead.subset(after)), Q).data,
                                            rtol=1e-9)
-            else:  # too few after it, or placed before them: drawn again after the new place, a batch of their own
-                assert share < attribution.KEEP if shift > 0 else placed < t_step - attribution.SHIFT
+            elif kept == "between":  # all of the lines' clips and the search's that start from the place to them
+                first = step_log.t[ahead.start].min()
+                assert placed < first - attribution.SHIFT and share == 1.0 and len(batches) == 1
+                own_t = step_log.t[sought.start]
+                between = (own_t >= placed - attribution.SHIFT) & (own_t < t_step)
+                assert between.sum() >= 3 and (own_t < placed - attribution.SHIFT).any()  # not every sought clip
+                used = mhe._decide_cost.clips
+                np.testing.assert_array_equal(np.sort(used.start), np.sort(np.r_[sought.start[between], ahead.start]))
+                np.testing.assert_allclose(JQ, real_evaluate(mhe._decision_cost(used), Q).data, rtol=1e-9)
+            else:  # too few after it: drawn again after the new place, a batch of their own
+                assert share < attribution.KEEP
                 assert batches[1][0] == lines and len(batches) == 2
                 again = mhe._decide_cost.clips
                 assert again is not ahead and step_log.t[again.start].min() >= placed - 1e-9

@@ -199,8 +199,9 @@ SHIFT = 0.25
 #: reached the planner 0.3–1.4 s past the bound from 3 s; offline (stop 72's noisy T3 recordings) the search placed
 #: the change 0.3–1.2 s past their first clip in 6 of 19 seeking decisions: a quarter of the clips left out (a
 #: reading's ~10 % scatter about 15 % wider) is the price of keeping to one batch. A change placed *earlier* than
-#: where they were drawn from still draws them again: kept, the data between were left out, and a false change
-#: placed 2 s early was read from half its span (one of 16 noisy T3 replays 20 % off after the switch, against 7 %).
+#: where they were drawn from takes the search's own clips that start between (:func:`kept_clips`): the lines' clips
+#: alone left those data out, and a false change placed 2 s early was read from half its span (one of 16 noisy T3
+#: replays 20 % off after the switch, against 7 %).
 KEEP = 0.75
 #: Clips at least that a located change keeps after it.
 LOCATE_MIN = 8
@@ -301,6 +302,28 @@ def locate(per_clip: np.ndarray, held: np.ndarray, keep_min: int = LOCATE_MIN) -
     """First clip after a change: the single change point the clips' costs explain best, the clip ``j`` in
     ``[0, N_c − keep_min]`` of the largest :func:`change_gains` (arguments as there)."""
     return int(np.argmax(change_gains(per_clip, held, keep_min)))
+
+
+def kept_clips(sought: np.ndarray, ahead: np.ndarray, own: np.ndarray, after: np.ndarray, placed: float,
+               since: float) -> np.ndarray | None:
+    """Positions, ascending, in a seeking decision's one batch of the clips its lines are decided on, or None where
+    too few are there and the lines' clips are drawn again from the place (a second batch; :data:`KEEP`).
+
+    ``sought`` (N_s,) and ``ahead`` (N_a,) are the start times [s] of the search's clips (drawn from before the
+    change showed) and of the lines' (drawn from ``since``, where the change sat), ``own`` and ``after`` their
+    positions in the batch (:func:`~amhe_cli.estimation.clips.join_clips`); ``placed`` [s] is where the search put
+    the change. Kept: the lines' clips that start after it, less :data:`SHIFT` (its jitter), and where it sits more
+    than ``SHIFT`` before ``since``, the search's own clips that start between (``[placed − SHIFT, since)``), the
+    data the lines' clips were not drawn from; where these are ``KEEP`` × N_a or more. Before stop 85 a change
+    placed earlier drew the lines' clips again: 3 of the 4 second batches of 18 seeking decisions in two offline
+    T3 replays of this path (docs/evaluation.md, stop 84), whose final decisions reached the planner 0.09–0.11 s past
+    the bound from 3 s in the emulated loop."""
+    sought, ahead = np.asarray(sought, dtype=float), np.asarray(ahead, dtype=float)
+    gap = (sought >= placed - SHIFT) & (sought < since) if placed < since - SHIFT else np.zeros(sought.size, bool)
+    keep = ahead >= placed - SHIFT
+    if keep.sum() + gap.sum() < KEEP * ahead.size:
+        return None
+    return np.sort(np.r_[np.asarray(own)[gap], np.asarray(after)[keep]])
 
 
 def test_reading(J: np.ndarray) -> tuple[float, int] | None:

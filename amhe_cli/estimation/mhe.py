@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from amhe_cli.estimation.attribution import (CLIPS as ATTRIBUTION_CLIPS, FACTORS, LOCATE_CLIPS, LOOKBACK, MOVING_MIN,
-                                             KEEP, NAMES as SPLIT_NAMES, SEEK_WORK, SHIFT, TEST_CLIPS, SplitTracker,
+                                             NAMES as SPLIT_NAMES, SEEK_WORK, TEST_CLIPS, SplitTracker, kept_clips,
                                              locate)
 from amhe_cli.estimation.clips import ClipsHeld, join_clips, legs_hold, rest_travel, sample_clips, window_clips
 from amhe_cli.estimation.cost import RolloutCost, StateWeights
@@ -758,12 +758,13 @@ class MovingHorizonEstimator:
         On a GPU backend of their own a decision that seeks its change scores the search (the lines and the split
         held, :data:`LOCATE_CLIPS` clips from :meth:`SplitTracker.search_from`) and its lines (with the points
         between them, :data:`ATTRIBUTION_CLIPS` clips drawn from where the change sat) in one batch, every
-        candidate on every clip. Where the search places the change no more than
-        :data:`~amhe_cli.estimation.attribution.SHIFT` (its jitter between decisions) before where they were drawn
-        from, it keeps the costs of the lines' clips that start after the place, less ``SHIFT``, where they are
-        :data:`~amhe_cli.estimation.attribution.KEEP` of them or more; else the lines are scored again on clips drawn
-        from the new place, a second batch (before stop 80 also where it placed the change later than their first
-        clip by more than ``SHIFT``). With two
+        candidate on every clip. It keeps the costs of the lines' clips that start after the place the search gives
+        the change, less :data:`~amhe_cli.estimation.attribution.SHIFT` (its jitter between decisions), and where
+        that place is earlier than where they were drawn from, of the search's own clips that start between, where
+        these are :data:`~amhe_cli.estimation.attribution.KEEP` of the lines' number or more
+        (:func:`~amhe_cli.estimation.attribution.kept_clips`); else the lines are scored again on clips drawn from
+        the new place, a second batch (before stop 80 also where it placed the change later than their first clip
+        by more than ``SHIFT``; before stop 85 wherever it placed it earlier). With two
         dependent batches, each its latency, a final decision waited for a provisional one still running in three
         of 32 emulated T3 runs and reached the planner past 3 s after the switch. *Measured* (docs/evaluation.md
         "One batch a decision"): in 32 emulated T3 runs on an H200 the final decision's job took 0.49 s at the
@@ -777,7 +778,8 @@ class MovingHorizonEstimator:
             known = None  # (Q, the costs of Q on ``clips``) where the seeking batch scored the lines already
             if start is not None:
                 # the change sought in the data from before it showed (:func:`locate`), then decided on clips
-                # drawn afresh after it: the clips that placed it favour a change, whichever there was
+                # drawn afresh after it (the clips that placed it favour a change, whichever there was), the
+                # search's own only for data those were not drawn from (a change found earlier than it sat)
                 sought = self._decision_clips(traj, stop, start, LOCATE_CLIPS, rng)
                 ahead = (self._decision_clips(traj, stop, since, ATTRIBUTION_CLIPS, rng)
                          if sought is not None and self._decide_on_gpu else None)
@@ -787,11 +789,11 @@ class MovingHorizonEstimator:
                     both, (own, after) = join_clips(traj, self.scene, sought, ahead)
                     C = self._decision_cost(both).evaluate(np.vstack([Q, tr.held(base)])).per_clip
                     reason = tr.relocate(float(traj.t[sought.start[locate(C[:len(P), own], C[-1, own])]]))
-                    # the lines' clips that start after the change (within the search's jitter), where enough do and
-                    # it sits no earlier than where they were drawn from (else the data between are not in them)
-                    keep = traj.t[ahead.start] >= tr.pending[0] - SHIFT
-                    if tr.pending[0] >= since - SHIFT and keep.sum() >= KEEP * len(ahead):
-                        clips, known = ahead.subset(keep), (Q, C[:-1, after[keep]].sum(axis=1))
+                    # the lines' clips that start after the change (within the search's jitter), and where it sits
+                    # earlier than where they were drawn from, the search's own that start between: where enough do
+                    index = kept_clips(traj.t[sought.start], traj.t[ahead.start], own, after, tr.pending[0], since)
+                    if index is not None:
+                        clips, known = both.subset(index), (Q, C[:-1, index].sum(axis=1))
                 elif sought is not None:
                     C = self._decision_cost(sought).evaluate(np.vstack([tr.candidates(base), tr.held(base)])).per_clip
                     reason = tr.relocate(float(traj.t[sought.start[locate(C[:-1], C[-1])]]))
