@@ -315,9 +315,9 @@ def kept_clips(sought: np.ndarray, ahead: np.ndarray, own: np.ndarray, after: np
     the change. Kept: the lines' clips that start after it, less :data:`SHIFT` (its jitter), and where it sits more
     than ``SHIFT`` before ``since``, the search's own clips that start between (``[placed − SHIFT, since)``), the
     data the lines' clips were not drawn from; where these are ``KEEP`` × N_a or more. Before stop 85 a change
-    placed earlier drew the lines' clips again: 3 of the 4 second batches of 18 seeking decisions in two offline
-    T3 replays of this path (docs/evaluation.md, stop 84), whose final decisions reached the planner 0.09–0.11 s past
-    the bound from 3 s in the emulated loop."""
+    placed earlier drew the lines' clips again: 3 of the 4 second batches of 18 seeking decisions in eight offline
+    T3 replays of this path; in the emulated loop finals of two batches were every late miss of stop 84's T3 grid
+    (0.09–0.11 s past the bound from 3 s), and none of 32 T3 finals took two with this (docs/evaluation.md, stop 85)."""
     sought, ahead = np.asarray(sought, dtype=float), np.asarray(ahead, dtype=float)
     gap = (sought >= placed - SHIFT) & (sought < since) if placed < since - SHIFT else np.zeros(sought.size, bool)
     keep = ahead >= placed - SHIFT
