@@ -525,6 +525,68 @@ def test_a_decision_the_windows_make_due_during_another_starts_as_that_one_ends(
         assert not u.skipped
 
 
+def test_a_window_whose_update_starts_during_a_decision_has_its_own_started_as_that_one_ends(step_log, monkeypatch):
+    """``concurrent`` and ``early``: a window whose update starts while a decision runs has its data counted, and
+    the decision they make due started, on the decisions' thread as that one ends, beside the window's solve, not
+    after it (there a final decision waited for a provisional one and then for the solve, 0.3–0.4 s); once solved
+    the window is fused in order and neither tested nor decided again."""
+    import threading
+    import time as _time
+    from amhe_cli.estimation import attribution, mhe as mhe_module
+    monkeypatch.setattr(attribution, "PERIOD", 0.5)  # each window's new half second makes a decision due
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    t_push = step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0
+    ts = [float(t_push), float(t_push) + 0.5]
+    first, solve, solving = threading.Event(), threading.Event(), threading.Event()
+    calls, holding = [], {"solve": False}
+    real_decide, real_step = MovingHorizonEstimator._decide, mhe_module.gaussian_step
+
+    def decide(self, traj, stop, t, *a, **k):
+        calls.append(float(t))
+        if len(calls) == 1:
+            assert first.wait(60)
+        return real_decide(self, traj, stop, t, *a, **k)
+
+    def step(*a):  # the second window's solve, held until the test lets it go
+        if holding["solve"]:
+            solving.set()
+            assert solve.wait(60)
+        return real_step(*a)
+
+    def until(ok, timeout=60.0):
+        end = _time.monotonic() + timeout
+        while not ok() and _time.monotonic() < end:
+            _time.sleep(0.01)
+        return ok()
+
+    monkeypatch.setattr(MovingHorizonEstimator, "_decide", decide)
+    monkeypatch.setattr(mhe_module, "gaussian_step", step)
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
+                                                          attribute_device="cpu")) as mhe:
+        mhe.concurrent = mhe.early = True
+        tr = mhe.tracker
+        assert not mhe.update(step_log, ts[0]).skipped and mhe.deciding and calls == [ts[0]]
+        holding["solve"] = True
+        out = []
+        second = threading.Thread(target=lambda: out.append(mhe.update(step_log, ts[1])), daemon=True)
+        second.start()
+        assert solving.wait(60)  # its update started (its data in) while the first decision runs
+        first.set()
+        # the first window fused, then the decision the second's data make due, while its solve is held
+        assert until(lambda: len(calls) == 2, 10.0) and calls[1] == ts[1] and second.is_alive()
+        holding["solve"] = False
+        solve.set()
+        second.join(60)
+        assert out and not out[0].skipped
+        assert until(lambda: not mhe.deciding)
+        mhe._decider.join(60)
+        assert [d.t for d in tr.decisions] == ts and [j[0] for j in mhe.jobs] == ts  # nothing again after its solve
+        assert tr.last == ts[1] and ts[1] in tr.product.times
+        assert mhe._early is None and not mhe._queued and not mhe._started_early
+
+
 # -- outputs and errors through the CLI ------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -405,6 +405,10 @@ class MovingHorizonEstimator:
         self._busy = False  # a test or decision runs on its own thread (set and cleared under _lock)
         # windows (t, mean, traj, stop, tested) that ended while one ran: fused, in order, as it ends
         self._queued: list[tuple[float, np.ndarray, Trajectory, int, bool]] = []
+        # the window (traj, stop, t) whose update started while one ran (:meth:`_test_early`): its test or the
+        # decision its data make due starts as that one ends, beside its solve; and the windows so started
+        self._early: tuple[Trajectory, int, float] | None = None
+        self._started_early: set[float] = set()
         self._began: dict[float, float] = {}  # time.monotonic() at which the update of each recent window began
         self.jobs: list[tuple[float, float, float, int | None, str]] = []
         self._runs: list[tuple[float, bool]] = []  # each decision's run [s] on its own thread, and whether it sought
@@ -579,21 +583,43 @@ class MovingHorizonEstimator:
     def _next_job(self) -> tuple | None:
         """On the decisions' thread, as a test or decision ends: the windows that ended meanwhile fused, in order,
         and the decision they made due, or else the last one's change test (where its update did not start one),
-        returned as the next job to run there now, not at the next window's update. None (the thread then
-        ends) where nothing is due and no window waits. Left to the next window, a decision due during another
-        waited up to an update period (0.5 s) more."""
+        returned as the next job to run there now, not at the next window's update; else, where a window's update
+        started meanwhile and its solve is not in (:meth:`_test_early`), its data counted and its test or the
+        decision they make due, as :meth:`_test_early` would have started it. None (the thread then ends) where
+        nothing is due and no window waits. Left to the next window, a decision due during another waited up to
+        an update period (0.5 s) more; left to its window's solve, a final decision due during a provisional one
+        waited for the solve too (0.3–0.4 s in an emulated T4 run on an H200, whose change reached the planner
+        3.04 s after the step)."""
+        tr = self.tracker
         while True:
             with self._lock:
                 queued, self._queued = self._queued, []
-                if not queued:
+                early, self._early = self._early, None
+                if early is not None and queued and early[2] <= queued[-1][0]:
+                    early = None  # its solve is in: it is taken in with its window
+                if not queued and early is None:
                     self._busy = False
                     return None
-            self._catch_up(queued)
-            self._publish()
-            t, _, traj, stop, tested = queued[-1]
-            tr = self.tracker
-            if tr.due() is not None or (not tested and tr.testing(t)):
-                return traj, stop, t, self.mean.copy(), self._decide_rng, not tested
+            if queued:
+                self._catch_up(queued)
+                self._publish()
+                t, _, traj, stop, tested = queued[-1]
+                if tr.due() is not None or (not tested and tr.testing(t)):
+                    if early is not None:
+                        with self._lock:  # after this job, unless its window's solve is in by then
+                            self._early = self._early or early
+                    return traj, stop, t, self.mean.copy(), self._decide_rng, not tested
+            if early is not None:
+                self._catch_up()
+                traj, stop, t = early
+                with self._lock:  # its window, once solved, sees it started (:meth:`_attribute`)
+                    tr.advance(t)
+                    run = tr.due() is not None or tr.testing(t)
+                    if run:
+                        self._started_early.add(float(t))
+                if run:
+                    self._publish()
+                    return traj, stop, t, self.mean.copy(), self._decide_rng, True
 
     def _test_early(self, traj: Trajectory, stop: int, t: float) -> bool:
         """At the start of the update of the informative window ending at sample ``stop`` (``t`` [s]), with
@@ -603,8 +629,10 @@ class MovingHorizonEstimator:
         solve, as before, a decision's split reached the planner 1.5 s after its data (median, emulated T4 on an
         H200; 0.9 s with the test started here), the solve's 0.2–0.3 s among it. Returns whether it started
         (the window is then not tested again after its solve)."""
-        if self.deciding:
-            return False
+        with self._lock:
+            if self._busy:  # the thread starts it as its job ends (:meth:`_next_job`), if the solve is not in
+                self._early = (traj, stop, float(t))
+                return False
         self._catch_up()
         self._publish()  # what this window reports while a decision runs
         tr = self.tracker
@@ -622,6 +650,11 @@ class MovingHorizonEstimator:
         the decision is in."""
         tr = self.tracker
         with self._lock:
+            if float(t) in self._started_early:  # its test or decision started on the thread as another ended
+                self._started_early.discard(float(t))
+                tested = True
+            if self._early is not None and self._early[2] == float(t):
+                self._early = None  # solved: taken in with its window, from the queue or here
             if self._busy:
                 self._queued.append((float(t), mu.copy(), traj, stop, tested))
                 return
@@ -863,6 +896,8 @@ class MovingHorizonEstimator:
         """
         t0 = time.perf_counter()
         self._began = {k: v for k, v in self._began.items() if k > t - LOOKBACK}
+        with self._lock:
+            self._started_early = {k for k in self._started_early if k > t - LOOKBACK}
         self._began[float(t)] = time.monotonic()
         s = self.settings
         stop = int(np.searchsorted(traj.t, t, side="right"))
