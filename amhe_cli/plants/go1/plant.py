@@ -419,9 +419,9 @@ class Go1Plant(Plant):
         estimator's and no raw samples are given.
         """
         with self._lock:
-            t = np.array(self._rec["t"])
-            k = 0 if last is None else int(np.searchsorted(t, t[-1] - last)) if len(t) else 0
-            t = t[k:]
+            ticks = self._rec["t"]
+            k = 0 if last is None or not ticks else bisect.bisect_left(ticks, ticks[-1] - last)
+            t = np.array(ticks[k:])
             qpos = np.array(self._rec["qpos"][k:]).reshape(len(t), -1)
             qvel = np.array(self._rec["qvel"][k:]).reshape(len(t), -1)
             ctrl = np.array(self._rec["ctrl"][k:]).reshape(len(t), 12)
