@@ -5,8 +5,8 @@ The plant's recording is filled here, as a run fills it (no robot, no network): 
 motion capture of the trunk and the box at 120 Hz with 1 mm of noise, for each ``--history`` length [s]; each
 build is timed ``--repeat`` times. Prints one line per (history, last): the median and fastest build [ms]. A
 build that reads the whole history grows with the run's length (before stop 85 the ticks' times were converted
-whole under the plant's lock: 600 s of history 27.1 ms for the last 8 s and 12.5 ms for the last 1 s, against
-19.2 and 6.0 ms reading only the span, on this project's 2-core machine).
+whole under the plant's lock: 600 s of history 27.1 ms for the last 8 s and 12.0 ms for the last 1 s, against
+19.4 and 6.3 ms reading only the span, on this project's 2-core machine).
 
     python benchmarks/mhe_data_build.py [--history 12,60,600] [--last 8,1] [--repeat 15]
 """
