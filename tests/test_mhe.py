@@ -587,6 +587,42 @@ def test_a_window_whose_update_starts_during_a_decision_has_its_own_started_as_t
         assert mhe._early is None and not mhe._queued and not mhe._started_early
 
 
+def test_a_window_started_early_is_taken_in_by_its_solve_or_by_the_decisions_thread_never_both(step_log, monkeypatch):
+    """The hand-over of a window whose update starts during a decision: claimed by the decisions' thread first, its
+    solved window is queued as tested; solved first, it is queued untested and the thread tests it once, from the
+    queue. A window tested twice would count as two tests in a row, which open a change."""
+    from amhe_cli.estimation import attribution
+    monkeypatch.setattr(attribution, "PERIOD", 1e9)  # no periodic decision: only change tests are due
+    scene = Scene(SceneConfig())
+    space = ParameterSpace(scene, free=("box_mass", "box_friction"), prior={"box_mass": 2.0, "box_friction": 0.3},
+                           prior_std={"box_mass": 0.1, "box_friction": 0.015})
+    t0 = float(step_log.t[np.argmax(np.linalg.norm(step_log.box_linvel[:, :2], axis=1) > 0.05)] + 1.0)
+    with MovingHorizonEstimator(scene, space, MHESettings(attribute=True, fuse=True, seed=1,
+                                                          attribute_device="cpu")) as mhe:
+        mhe.concurrent = mhe.early = True
+        mhe.update(step_log, t0)
+        mhe._decider.join(60)
+        mu = mhe.window_mean.copy()
+        for k, claimed_first in enumerate((True, False)):
+            t = t0 + 0.5 * (k + 1)
+            stop = int(np.searchsorted(step_log.t, t, side="right"))
+            mhe._busy = True  # a decision runs on the thread
+            assert not mhe._test_early(step_log, stop, t) and mhe._early[2] == t
+            if claimed_first:  # the decision ends before the window's solve: the thread starts its test
+                job = mhe._next_job()
+                assert job[2] == t and job[5] is True and mhe._early is None and t in mhe._started_early
+                mhe._attribute(step_log, stop, t, mu)  # solved: queued, already tested
+                assert mhe._queued[-1][0] == t and mhe._queued[-1][4] is True and t not in mhe._started_early
+                assert mhe._next_job() is None and not mhe.deciding  # fused; nothing more for it
+            else:  # the solve is in first: queued untested, and the thread's claim of it lapses
+                mhe._attribute(step_log, stop, t, mu)
+                assert mhe._early is None and mhe._queued[-1][0] == t and mhe._queued[-1][4] is False
+                job = mhe._next_job()
+                assert job[2] == t and job[5] is True  # its one test, from the queue
+                mhe._busy = False
+            assert mhe.tracker.last == t
+
+
 # -- outputs and errors through the CLI ------------------------------------------
 
 @pytest.fixture(scope="module")

@@ -594,9 +594,9 @@ class MovingHorizonEstimator:
         while True:
             with self._lock:
                 queued, self._queued = self._queued, []
-                early, self._early = self._early, None
+                early = self._early
                 if early is not None and queued and early[2] <= queued[-1][0]:
-                    early = None  # its solve is in: it is taken in with its window
+                    self._early = early = None  # its solve is in: it is taken in with its window
                 if not queued and early is None:
                     self._busy = False
                     return None
@@ -605,14 +605,14 @@ class MovingHorizonEstimator:
                 self._publish()
                 t, _, traj, stop, tested = queued[-1]
                 if tr.due() is not None or (not tested and tr.testing(t)):
-                    if early is not None:
-                        with self._lock:  # after this job, unless its window's solve is in by then
-                            self._early = self._early or early
                     return traj, stop, t, self.mean.copy(), self._decide_rng, not tested
             if early is not None:
                 self._catch_up()
-                traj, stop, t = early
-                with self._lock:  # its window, once solved, sees it started (:meth:`_attribute`)
+                with self._lock:  # claimed here or taken in by its window's solve (:meth:`_attribute`), not both:
+                    if self._early is not early:  # a window tested twice counts as two tests in a row
+                        continue  # solved meanwhile: queued, taken in as the others
+                    self._early = None
+                    traj, stop, t = early
                     tr.advance(t)
                     run = tr.due() is not None or tr.testing(t)
                     if run:
