@@ -584,7 +584,7 @@ def test_a_window_whose_update_starts_during_a_decision_has_its_own_started_as_t
         mhe._decider.join(60)
         assert [d.t for d in tr.decisions] == ts and [j[0] for j in mhe.jobs] == ts  # nothing again after its solve
         assert tr.last == ts[1] and ts[1] in tr.product.times
-        assert mhe._early is None and not mhe._queued and not mhe._started_early
+        assert mhe._early is None and not mhe._queued and mhe._started_early is None
 
 
 def test_a_window_started_early_is_taken_in_by_its_solve_or_by_the_decisions_thread_never_both(step_log, monkeypatch):
@@ -610,9 +610,9 @@ def test_a_window_started_early_is_taken_in_by_its_solve_or_by_the_decisions_thr
             assert not mhe._test_early(step_log, stop, t) and mhe._early[2] == t
             if claimed_first:  # the decision ends before the window's solve: the thread starts its test
                 job = mhe._next_job()
-                assert job[2] == t and job[5] is True and mhe._early is None and t in mhe._started_early
+                assert job[2] == t and job[5] is True and mhe._early is None and mhe._started_early == t
                 mhe._attribute(step_log, stop, t, mu)  # solved: queued, already tested
-                assert mhe._queued[-1][0] == t and mhe._queued[-1][4] is True and t not in mhe._started_early
+                assert mhe._queued[-1][0] == t and mhe._queued[-1][4] is True and mhe._started_early is None
                 assert mhe._next_job() is None and not mhe.deciding  # fused; nothing more for it
             else:  # the solve is in first: queued untested, and the thread's claim of it lapses
                 mhe._attribute(step_log, stop, t, mu)

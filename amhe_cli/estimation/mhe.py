@@ -29,6 +29,7 @@ from __future__ import annotations
 import threading
 import time
 import warnings
+from collections import deque
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -406,12 +407,15 @@ class MovingHorizonEstimator:
         # windows (t, mean, traj, stop, tested) that ended while one ran: fused, in order, as it ends
         self._queued: list[tuple[float, np.ndarray, Trajectory, int, bool]] = []
         # the window (traj, stop, t) whose update started while one ran (:meth:`_test_early`): its test or the
-        # decision its data make due starts as that one ends, beside its solve; and the windows so started
+        # decision its data make due starts as that one ends, beside its solve; and the time of the window so
+        # started, until its solve is in (one at most: the next window's update starts after this one's ends)
         self._early: tuple[Trajectory, int, float] | None = None
-        self._started_early: set[float] = set()
+        self._started_early: float | None = None
         self._began: dict[float, float] = {}  # time.monotonic() at which the update of each recent window began
         self.jobs: list[tuple[float, float, float, int | None, str]] = []
-        self._runs: list[tuple[float, bool]] = []  # each decision's run [s] on its own thread, and whether it sought
+        # the last LEAD_JOBS decisions' runs [s] on their own thread, and of those that sought their change
+        self._runs: deque[float] = deque(maxlen=LEAD_JOBS)
+        self._seeking_runs: deque[float] = deque(maxlen=LEAD_JOBS)
         self._sought = False  # the decision of the job running now sought its change (:meth:`_decide`)
         self._decide_edits: list = []  # model edits made during a decision, for the decisions' backend after it
         self._lock = threading.Lock()
@@ -616,7 +620,7 @@ class MovingHorizonEstimator:
                     tr.advance(t)
                     run = tr.due() is not None or tr.testing(t)
                     if run:
-                        self._started_early.add(float(t))
+                        self._started_early = float(t)
                 if run:
                     self._publish()
                     return traj, stop, t, self.mean.copy(), self._decide_rng, True
@@ -650,8 +654,8 @@ class MovingHorizonEstimator:
         the decision is in."""
         tr = self.tracker
         with self._lock:
-            if float(t) in self._started_early:  # its test or decision started on the thread as another ended
-                self._started_early.discard(float(t))
+            if self._started_early == float(t):  # its test or decision started on the thread as another ended
+                self._started_early = None
                 tested = True
             if self._early is not None and self._early[2] == float(t):
                 self._early = None  # solved: taken in with its window, from the queue or here
@@ -743,11 +747,12 @@ class MovingHorizonEstimator:
             self.jobs.append((float(t), t0 - began, ended - began, None if n0 is None or n1 is None else n1 - n0, what))
             if what in ("provisional", "change", "period"):
                 # what the next provisional decision may take: none is made that would hold the final one up
-                self._runs.append((ended - t0, self._sought))
+                self._runs.append(ended - t0)
+                if self._sought:
+                    self._seeking_runs.append(ended - t0)
                 tr = self.tracker
-                tr.lead = max(run for run, _ in self._runs[-LEAD_JOBS:])
-                seeking = [run for run, sought in reversed(self._runs) if sought][:LEAD_JOBS]
-                tr.seek_lead = max(seeking) if seeking else tr.lead * SEEK_WORK
+                tr.lead = max(self._runs)
+                tr.seek_lead = max(self._seeking_runs) if self._seeking_runs else tr.lead * SEEK_WORK
 
     def _batches(self) -> int | None:
         """Batches the decisions' own backend ran so far (MuJoCo Warp's timing), None where it keeps no count."""
@@ -896,8 +901,6 @@ class MovingHorizonEstimator:
         """
         t0 = time.perf_counter()
         self._began = {k: v for k, v in self._began.items() if k > t - LOOKBACK}
-        with self._lock:
-            self._started_early = {k for k in self._started_early if k > t - LOOKBACK}
         self._began[float(t)] = time.monotonic()
         s = self.settings
         stop = int(np.searchsorted(traj.t, t, side="right"))
